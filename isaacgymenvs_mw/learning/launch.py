@@ -1,0 +1,148 @@
+"""What ``python train.py ...`` does: build the task from the composed config, then train or evaluate."""
+
+from __future__ import annotations
+
+import datetime
+import importlib
+import json
+import os
+import time
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from isaacgymenvs_mw.learning.runner import (
+    Runner,
+    device_description,
+    evaluate,
+    package_versions,
+    rsl_rl_config,
+    write_json,
+)
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.tasks import get_task_class
+from isaacgymenvs_mw.utils.config import check_run_config, to_dict
+from isaacgymenvs_mw.utils.device import check_device_pair, resolve_device
+from isaacgymenvs_mw.utils.seeding import set_seed
+
+
+def build_task(cfg: DictConfig):
+    """Construct the task named by ``cfg.task_name`` on the configured devices."""
+    check_run_config(cfg)
+    if cfg.get("task_module"):
+        importlib.import_module(cfg.task_module)
+    task_class = get_task_class(cfg.task_name)
+    rank = int(os.getenv("LOCAL_RANK", "0"))
+    if cfg.get("multi_gpu", False):
+        sim_device = rl_device = f"cuda:{rank}"
+    else:
+        sim_device = resolve_device(cfg.sim_device, "sim_device")
+        rl_device = resolve_device(cfg.rl_device, "rl_device")
+    check_device_pair(sim_device, rl_device)
+    if sim_device.startswith("cuda"):
+        torch.cuda.set_device(torch.device(sim_device))
+    task_cfg = to_dict(cfg.task)
+    return task_class(
+        task_cfg, rl_device=rl_device, sim_device=sim_device, graphics_device_id=cfg.graphics_device_id,
+        headless=cfg.headless, virtual_screen_capture=False, force_render=False,
+    )
+
+
+def run(cfg: DictConfig, started_at: float | None = None) -> dict:
+    """Train (default) or evaluate (test=True); returns what was written to summary.json / eval.json."""
+    started_at = time.perf_counter() if started_at is None else started_at
+    check_run_config(cfg)
+    rank = int(os.getenv("RANK", "0"))
+    seed = set_seed(int(cfg.seed), bool(cfg.torch_deterministic), rank=rank)
+    train_cfg = rsl_rl_config(to_dict(cfg.train))
+    checkpoint = _checkpoint_path(cfg)
+
+    task = build_task(cfg)
+    env = RslRlVecEnv(task)
+    experiment = train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name
+    max_iterations = int(train_cfg.pop("max_iterations"))
+    stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    run_dir = Path(cfg.runs_dir) / experiment / stamp
+    is_main = rank == 0
+
+    if cfg.test:
+        runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
+        _load(runner, checkpoint, task)
+        policy = runner.get_inference_policy(device=task.rl_device)
+        result = evaluate(task, policy, task.rl_device)
+        result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
+                      device=device_description(task.sim_device), versions=package_versions())
+        eval_path = checkpoint.parent / "eval.json"
+        write_json(eval_path, result)
+        print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
+        print(f"[eval] written to {eval_path}", flush=True)
+        task.close()
+        return result
+
+    if is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    runner = Runner(env, train_cfg, log_dir=str(run_dir) if is_main else None, device=task.rl_device)
+    if checkpoint is not None:
+        _load(runner, checkpoint, task)
+        print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
+    print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
+          f"{max_iterations} iterations, run dir {run_dir}", flush=True)
+    start_it = runner.current_learning_iteration
+    runner.learn(max_iterations, init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
+
+    wall = time.perf_counter() - started_at
+    means = runner.recent_means()
+    summary = {
+        "task": cfg.task_name,
+        "num_envs": task.num_envs,
+        "world_size": runner.gpu_world_size,
+        "seed": seed,
+        "iterations": runner.current_learning_iteration - start_it,
+        "final_iteration": runner.current_learning_iteration,
+        "env_steps": runner.total_env_steps,
+        "wall_time_s": wall,
+        "train_time_s": runner.train_time,
+        "env_steps_per_s": runner.total_env_steps / max(runner.train_time, 1e-9),
+        "mean_episode_reward": means.get("mean_episode_reward"),
+        "mean_episode_length": means.get("mean_episode_length"),
+        "timeout_fraction": means.get("timeout_fraction"),
+        "device": device_description(task.sim_device),
+        "versions": package_versions(),
+        "run_dir": str(run_dir),
+        "history": runner.history,
+    }
+    if is_main:
+        write_json(run_dir / "summary.json", summary)
+        print(f"[train] done in {wall:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
+              f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
+    task.close()
+    return summary
+
+
+def _checkpoint_path(cfg: DictConfig) -> Path | None:
+    if not cfg.checkpoint:
+        if cfg.test:
+            raise ValueError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
+        return None
+    path = Path(str(cfg.checkpoint)).expanduser().resolve()
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
+    return path
+
+
+def _load(runner: Runner, checkpoint: Path, task) -> None:
+    """Load a checkpoint after checking that its policy fits this task's observation and action sizes."""
+    state = torch.load(checkpoint, map_location=task.rl_device, weights_only=False)
+    actor = state.get("actor_state_dict", {})
+    weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
+    if weights:
+        ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
+        if ckpt_obs != task.num_obs or ckpt_act != task.num_actions:
+            raise ValueError(
+                f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
+                f"task {type(task).__name__} has {task.num_obs} observations and {task.num_actions} actions"
+            )
+    runner.load(str(checkpoint), map_location=task.rl_device)
+

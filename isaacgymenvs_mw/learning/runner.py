@@ -1,0 +1,208 @@
+"""Training and evaluation with rsl-rl-lib's PPO, configured by cfg/train/<Task>PPO.yaml.
+
+rsl_rl's OnPolicyRunner builds PPO, saves and loads checkpoints and exports policies; its ``learn`` loop is
+replaced here so that a rollout never waits on the GPU (episode statistics stay on the device and are read
+once per iteration), each iteration prints one line, and every run leaves summary.json behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from collections import deque
+from importlib import metadata
+from pathlib import Path
+
+import torch
+from rsl_rl.runners import OnPolicyRunner
+from torch.utils.tensorboard import SummaryWriter
+
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+
+TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")
+
+
+def rsl_rl_config(train_cfg: dict) -> dict:
+    """Flatten our train YAML (runner/algorithm/actor/critic) into the dict OnPolicyRunner expects."""
+    missing = [s for s in TRAIN_SECTIONS if s not in train_cfg]
+    if missing:
+        raise ValueError(f"train config lacks section(s) {missing}; expected {list(TRAIN_SECTIONS)}")
+    runner = dict(train_cfg["runner"])
+    for key in ("num_steps_per_env", "max_iterations", "save_interval", "obs_groups"):
+        if key not in runner:
+            raise ValueError(f"train.runner.{key} is required")
+    return {**runner, "algorithm": dict(train_cfg["algorithm"]), "actor": dict(train_cfg["actor"]),
+            "critic": dict(train_cfg["critic"])}
+
+
+def package_versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for dist in ("torch", "warp-lang", "mujoco", "mujoco-warp", "rsl-rl-lib"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            out[dist] = "not installed"
+    return out
+
+
+def device_description(device: str) -> str:
+    if device.startswith("cuda"):
+        return f"{device} ({torch.cuda.get_device_name(torch.device(device))})"
+    return f"cpu ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
+
+
+class Runner(OnPolicyRunner):
+    """OnPolicyRunner with a sync-free rollout, one progress line per iteration, and a run summary."""
+
+    def __init__(self, env: RslRlVecEnv, train_cfg: dict, log_dir: str | None, device: str) -> None:
+        super().__init__(env, train_cfg, log_dir=log_dir, device=device)
+        self.log_dir = log_dir
+        self.is_main = not self.is_distributed or self.gpu_global_rank == 0
+        self.recent: deque[dict[str, float]] = deque(maxlen=5)  # last iterations' episode stats
+        self.history: list[dict] = []
+        self.total_env_steps = 0
+        self.train_time = 0.0
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+        env: RslRlVecEnv = self.env  # type: ignore[assignment]
+        writer = SummaryWriter(self.log_dir, flush_secs=10) if (self.log_dir and self.is_main) else None
+        if init_at_random_ep_len:
+            env.episode_length_buf = torch.randint_like(env.episode_length_buf, high=int(env.max_episode_length))
+        obs = env.get_observations().to(self.device)
+        self.alg.train_mode()
+        if self.is_distributed:
+            self.alg.broadcast_parameters()
+        steps = self.cfg["num_steps_per_env"]
+        start_it = self.current_learning_iteration
+        last_it = start_it + num_learning_iterations
+        it = start_it
+        try:
+            for it in range(start_it, last_it):
+                t0 = time.perf_counter()
+                with torch.inference_mode():
+                    for _ in range(steps):
+                        actions = self.alg.act(obs)
+                        obs, rewards, dones, extras = env.step(actions.to(env.device))
+                        obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
+                        self.alg.process_env_step(obs, rewards, dones, extras)
+                    self.alg.compute_returns(obs)
+                t1 = time.perf_counter()
+                losses = self.alg.update()
+                t2 = time.perf_counter()
+                self.current_learning_iteration = it + 1
+                self._log_iteration(writer, it, last_it, t1 - t0, t2 - t1, losses)
+                if self.is_main and self.log_dir and (it + 1) % self.cfg["save_interval"] == 0:
+                    self.save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
+        except BaseException:
+            # An interrupted run keeps what it learned so far.
+            if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
+                self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}_interrupted.pt"))
+            raise
+        finally:
+            if writer is not None:
+                writer.close()
+        if self.is_main and self.log_dir:
+            self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}.pt"))
+
+    def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict) -> None:
+        env: RslRlVecEnv = self.env  # type: ignore[assignment]
+        stats = env.stats.pop()  # the one host sync of the iteration
+        world = self.gpu_world_size
+        env_steps = self.cfg["num_steps_per_env"] * env.num_envs * world
+        self.total_env_steps += env_steps
+        self.train_time += collect_s + learn_s
+        if stats["episodes"] > 0:
+            self.recent.append(stats)
+        fps = env_steps / max(collect_s + learn_s, 1e-9)
+        record = {"iteration": it + 1, "env_steps": self.total_env_steps, "time_s": self.train_time,
+                  "steps_per_s": fps, **{k: v for k, v in stats.items()}}
+        self.history.append(record)
+        if not self.is_main:
+            return
+        if writer is not None:
+            for key, value in losses.items():
+                writer.add_scalar(f"Loss/{key}", value, it)
+            writer.add_scalar("Loss/learning_rate", self.alg.learning_rate, it)
+            writer.add_scalar("Policy/mean_std", self.alg.get_policy().output_std.mean().item(), it)
+            writer.add_scalar("Perf/total_fps", fps, it)
+            writer.add_scalar("Perf/collection_time", collect_s, it)
+            writer.add_scalar("Perf/learning_time", learn_s, it)
+            for key, value in stats.items():
+                if key == "episodes":
+                    continue
+                tag = key if "/" in key else f"Train/{key}"
+                writer.add_scalar(tag, value, it)
+                if key in ("mean_episode_reward", "mean_episode_length"):
+                    writer.add_scalar(f"{tag}/time", value, int(self.train_time))
+        rew = f"{stats['mean_episode_reward']:9.2f}" if stats["episodes"] else "        -"
+        length = f"{stats['mean_episode_length']:7.1f}" if stats["episodes"] else "      -"
+        print(
+            f"[it {it + 1:>5}/{last_it}] steps {self.total_env_steps:>11,} | {fps:>10,.0f} steps/s | "
+            f"ep_rew {rew} | ep_len {length} | value_loss {losses.get('value', float('nan')):8.4f} | "
+            f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s",
+            flush=True,
+        )
+
+    def recent_means(self) -> dict[str, float]:
+        """Episode statistics over the last few iterations (weighted by episodes)."""
+        total = sum(s["episodes"] for s in self.recent)
+        if total == 0:
+            return {}
+        keys = [k for k in self.recent[-1] if k != "episodes"]
+        return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
+
+
+def evaluate(task, policy, device: str) -> dict:
+    """Run every env for one full episode with the deterministic policy; report per-episode means.
+
+    Each env contributes its first episode, so the result is an unbiased sample of ``num_envs`` episodes from
+    the task's reset distribution (commands too, for the legged tasks).
+    """
+    env = RslRlVecEnv(task)
+    n = env.num_envs
+    ret = torch.zeros(n, device=env.device)
+    length = torch.zeros(n, device=env.device)
+    finished = torch.zeros(n, dtype=torch.bool, device=env.device)
+    result_ret = torch.zeros(n, device=env.device)
+    result_len = torch.zeros(n, device=env.device)
+    result_timeout = torch.zeros(n, dtype=torch.bool, device=env.device)
+    metric_sums: dict[str, torch.Tensor] = {}
+    obs = env.get_observations()
+    max_steps = int(env.max_episode_length) + 2
+    with torch.inference_mode():
+        for step in range(max_steps):
+            actions = policy(obs.to(device))
+            obs, rew, dones, extras = env.step(actions.to(env.device))
+            active = ~finished
+            ret += rew * active
+            length += active.float()
+            for key, value in extras.get("eval_metrics", {}).items():
+                # per-env per-step values, averaged over the steps each env spent in its first episode
+                metric_sums[key] = metric_sums.get(key, torch.zeros(n, device=env.device)) + value * active
+            just_done = active & (dones != 0)
+            result_ret = torch.where(just_done, ret, result_ret)
+            result_len = torch.where(just_done, length, result_len)
+            result_timeout |= just_done & (extras["time_outs"] != 0)
+            finished |= just_done
+            if step % 50 == 0 and bool(finished.all()):
+                break
+    if not bool(finished.all()):
+        # Envs still running at the cap count with what they reached.
+        result_ret = torch.where(finished, result_ret, ret)
+        result_len = torch.where(finished, result_len, length)
+    out = {
+        "episodes": n,
+        "mean_episode_reward": float(result_ret.mean()),
+        "mean_episode_length": float(result_len.mean()),
+        "timeout_fraction": float(result_timeout.float().mean()),
+    }
+    for key, value in metric_sums.items():
+        out[key] = float((value / length.clamp(min=1)).mean())
+    return out
+
+
+def write_json(path: Path, data: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")

@@ -1,0 +1,94 @@
+"""VecTask -> rsl_rl VecEnv, with per-episode statistics kept on the device (read once per iteration)."""
+
+from __future__ import annotations
+
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+
+
+class EpisodeStats:
+    """Sums over finished episodes, accumulated with tensor ops only; ``pop()`` syncs once and clears."""
+
+    def __init__(self, num_envs: int, device: str) -> None:
+        self.ret = torch.zeros(num_envs, device=device)
+        self.length = torch.zeros(num_envs, device=device)
+        # [count, return sum, length sum, timeouts]
+        self.totals = torch.zeros(4, device=device, dtype=torch.float64)
+        self.term_sums: dict[str, torch.Tensor] = {}
+
+    def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor) -> None:
+        self.ret += rewards
+        self.length += 1
+        done = dones.float()
+        self.totals += torch.stack(
+            (done.sum(), (self.ret * done).sum(), (self.length * done).sum(), (time_outs.float() * done).sum())
+        ).double()
+        keep = 1.0 - done
+        self.ret *= keep
+        self.length *= keep
+
+    def add_terms(self, episode_terms: dict[str, torch.Tensor]) -> None:
+        """Task-reported per-term sums over the episodes that ended this step (already summed over envs)."""
+        for key, value in episode_terms.items():
+            acc = self.term_sums.get(key)
+            self.term_sums[key] = value.double() if acc is None else acc + value.double()
+
+    def pop(self) -> dict[str, float]:
+        count, ret, length, timeouts = self.totals.tolist()
+        out = {"episodes": count}
+        if count > 0:
+            out.update(
+                mean_episode_reward=ret / count,
+                mean_episode_length=length / count,
+                timeout_fraction=timeouts / count,
+            )
+            for key, value in self.term_sums.items():
+                out[f"Episode_Reward/{key}"] = float(value) / count
+        self.totals.zero_()
+        self.term_sums = {}
+        return out
+
+
+class RslRlVecEnv(VecEnv):
+    """Presents a VecTask to rsl_rl: TensorDict observations ('policy', and 'critic' when numStates > 0)."""
+
+    def __init__(self, task: VecTask) -> None:
+        self.task = task
+        self.num_envs = task.num_envs
+        self.num_actions = task.num_actions
+        self.max_episode_length = task.max_episode_length
+        self.device = task.rl_device
+        self.cfg = task.cfg
+        self.stats = EpisodeStats(task.num_envs, task.rl_device)
+        self._obs = self._to_tensordict(task.reset())
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        return self.task.progress_buf
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor) -> None:
+        self.task.progress_buf.copy_(value)
+
+    def _to_tensordict(self, obs_dict: dict[str, torch.Tensor]) -> TensorDict:
+        groups = {"policy": obs_dict["obs"]}
+        if "states" in obs_dict:
+            groups["critic"] = obs_dict["states"]
+        return TensorDict(groups, batch_size=[self.num_envs], device=self.device)
+
+    def get_observations(self) -> TensorDict:
+        return self._obs
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        obs_dict, rew, reset, extras = self.task.step(actions)
+        self._obs = self._to_tensordict(obs_dict)
+        self.stats.record(rew, reset, extras["time_outs"])
+        if "episode_terms" in extras:
+            self.stats.add_terms(extras.pop("episode_terms"))
+        return self._obs, rew, reset, extras
+
+    def close(self) -> None:
+        self.task.close()

@@ -1,0 +1,251 @@
+"""Batched MuJoCo Warp state on the device, seen from torch without copies.
+
+One ``Simulator`` holds ``num_worlds`` copies of one model. Tasks read and write the torch views below in place;
+the simulator steps all worlds at once. On CUDA each group of kernels (the physics of one env step, a reset,
+a kinematics refresh) is captured once into a CUDA graph and replayed; graphs bake in array pointers, so every
+write from torch must be in place (``view[:] = ...``, ``copy_``), never a rebinding.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import mujoco
+import numpy as np
+import torch
+import warp as wp
+
+import mujoco_warp as mjw
+
+# Overflow bits we report, and the task YAML key that fixes each.
+_OVERFLOW_KEYS = {
+    int(mjw.OverflowType.NEFC): "sim.njmax",
+    int(mjw.OverflowType.BROADPHASE): "sim.nconmax",
+    int(mjw.OverflowType.NARROWPHASE): "sim.nconmax",
+    int(mjw.OverflowType.CONTACT_MATCH): "sim.nconmax",
+}
+
+
+@dataclass
+class ContactSensor:
+    body: str
+    adr: int
+
+
+def _wp_device(device: str) -> wp.context.Device:
+    wp.init()
+    return wp.get_device(device)
+
+
+class Simulator:
+    """``num_worlds`` MuJoCo Warp worlds of one model on one device.
+
+    Args:
+        mj_model: the compiled host model (also kept for viewers and MuJoCo-C comparisons).
+        num_worlds: number of parallel worlds (= numEnvs).
+        device: "cpu" or "cuda:N".
+        substeps: physics steps per ``simulate()`` call (= controlFrequencyInv).
+        nconmax: contacts per world (pooled over worlds by MuJoCo Warp).
+        njmax: constraint rows per world.
+        per_world_fields: Model fields given one value per world (domain randomisation), e.g. "geom_friction".
+    """
+
+    def __init__(
+        self,
+        mj_model: mujoco.MjModel,
+        num_worlds: int,
+        device: str = "cpu",
+        substeps: int = 1,
+        nconmax: int | None = None,
+        njmax: int | None = None,
+        per_world_fields: Sequence[str] = (),
+        use_graphs: bool | None = None,
+    ) -> None:
+        if num_worlds < 1:
+            raise ValueError(f"numEnvs must be >= 1, got {num_worlds}")
+        if substeps < 1:
+            raise ValueError(f"controlFrequencyInv must be >= 1, got {substeps}")
+        self.mj_model = mj_model
+        self.num_worlds = int(num_worlds)
+        self.substeps = int(substeps)
+        self.device = torch.device(device)
+        self.wp_device = _wp_device(device)
+        self.use_graphs = self.wp_device.is_cuda if use_graphs is None else bool(use_graphs)
+        if self.use_graphs and self.wp_device.is_cuda and not wp.is_mempool_enabled(self.wp_device):
+            # MuJoCo Warp allocates scratch inside step(); capturing that needs the stream-ordered allocator.
+            self.use_graphs = False
+
+        with wp.ScopedDevice(self.wp_device):
+            self.model = mjw.put_model(mj_model, batch_sizes={f: self.num_worlds for f in per_world_fields})
+            # Device printf per world per step would serialise the GPU; we poll d.overflow instead.
+            self.model.opt.warn_overflow = 0
+            self.data = mjw.make_data(mj_model, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
+
+        self._bind_views()
+        self._reset_mask = torch.zeros(self.num_worlds, dtype=torch.bool, device=self.device)
+        self._reset_mask_wp = wp.from_torch(self._reset_mask, dtype=wp.bool)
+        self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
+        self._graphs: dict[str, object] = {}
+        self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
+
+    # ------------------------------------------------------------------ views
+    def _bind_views(self) -> None:
+        d, m = self.data, self.mj_model
+        self.qpos = wp.to_torch(d.qpos)
+        self.qvel = wp.to_torch(d.qvel)
+        self.ctrl = wp.to_torch(d.ctrl)
+        self.qacc = wp.to_torch(d.qacc)
+        self.qfrc_actuator = wp.to_torch(d.qfrc_actuator)
+        self.xpos = wp.to_torch(d.xpos)
+        self.xquat = wp.to_torch(d.xquat)
+        self.sensordata = wp.to_torch(d.sensordata)
+        self.xfrc_applied = wp.to_torch(d.xfrc_applied)
+        self.overflow = wp.to_torch(d.overflow)
+
+        self.floating_base = m.njnt > 0 and int(m.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
+        q0, v0 = (7, 6) if self.floating_base else (0, 0)
+        self.dof_pos = self.qpos[:, q0:]
+        self.dof_vel = self.qvel[:, v0:]
+        if self.floating_base:
+            self.root_pos = self.qpos[:, 0:3]
+            self.root_quat = self.qpos[:, 3:7]  # (w, x, y, z)
+            self.root_lin_vel = self.qvel[:, 0:3]  # world frame
+            self.root_ang_vel = self.qvel[:, 3:6]  # body frame (MuJoCo free-joint convention)
+
+        self.dof_names = [
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+            for j in range(m.njnt)
+            if int(m.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+        ]
+        self.body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody)]
+        self.contact_sensors: dict[str, ContactSensor] = {}
+        for s in range(m.nsensor):
+            is_contact = int(m.sensor_type[s]) == int(mujoco.mjtSensor.mjSENS_CONTACT)
+            if is_contact and int(m.sensor_objtype[s]) == int(mujoco.mjtObj.mjOBJ_BODY):
+                body = self.body_names[m.sensor_objid[s]]
+                self.contact_sensors[body] = ContactSensor(body, int(m.sensor_adr[s]))
+
+    @property
+    def num_dof(self) -> int:
+        return self.dof_pos.shape[1]
+
+    @property
+    def dt(self) -> float:
+        return float(self.mj_model.opt.timestep)
+
+    def model_field(self, name: str) -> torch.Tensor:
+        """Torch view of a Model array (per-world fields have num_worlds rows)."""
+        return wp.to_torch(getattr(self.model, name))
+
+    def contact_forces(self, bodies: Sequence[str]) -> torch.Tensor:
+        """Net contact force on each named body, (num_worlds, len(bodies), 3). Bodies need a contact sensor."""
+        missing = [b for b in bodies if b not in self.contact_sensors]
+        if missing:
+            raise KeyError(f"no contact sensor on bodies {missing}; sensed bodies: {list(self.contact_sensors)}")
+        cols = torch.tensor(
+            [[self.contact_sensors[b].adr + k for k in range(3)] for b in bodies], device=self.device
+        )
+        return self.sensordata[:, cols]
+
+    # ------------------------------------------------------------ execution
+    def _run(self, name: str, fn: Callable[[], None]) -> None:
+        """Run a fixed sequence of Warp launches, from a captured graph where graphs are on."""
+        if not self.use_graphs:
+            with wp.ScopedDevice(self.wp_device):
+                fn()
+            return
+        graph = self._graphs.get(name)
+        if graph is None:
+            with wp.ScopedDevice(self.wp_device):
+                fn()  # compiles the kernels outside the capture
+                with wp.ScopedCapture(device=self.wp_device) as capture:
+                    fn()
+            graph = self._graphs[name] = capture.graph
+        wp.capture_launch(graph)
+
+    def simulate(self) -> None:
+        """Advance every world by ``substeps`` physics steps."""
+
+        def physics() -> None:
+            for _ in range(self.substeps):
+                mjw.step(self.model, self.data)
+
+        self._run("physics", physics)
+        self.physics_steps += self.substeps
+
+    def forward(self) -> None:
+        """Recompute every derived quantity (kinematics, contacts, sensors) from qpos/qvel/ctrl."""
+        self._run("forward", lambda: mjw.forward(self.model, self.data))
+
+    def refresh_kinematics(self) -> None:
+        """Recompute body poses (xpos, xquat, ...) after writing qpos, without collisions or dynamics."""
+        self._run("kinematics", lambda: mjw.kinematics(self.model, self.data))
+
+    def reset_worlds(self, mask: torch.Tensor) -> None:
+        """Return the masked worlds to the model's initial state (qpos0, zero velocity, no controls or forces).
+
+        Overflow bits of those worlds are folded into the run's record first: a reset clears them.
+        """
+        self._overflow_seen |= self.overflow
+        self._reset_mask.copy_(mask)
+        self._run("reset", lambda: mjw.reset_data(self.model, self.data, self._reset_mask_wp))
+
+    def write_state(
+        self,
+        mask: torch.Tensor,
+        dof_pos: torch.Tensor | None = None,
+        dof_vel: torch.Tensor | None = None,
+        root_pos: torch.Tensor | None = None,
+        root_quat: torch.Tensor | None = None,
+        root_lin_vel: torch.Tensor | None = None,
+        root_ang_vel: torch.Tensor | None = None,
+    ) -> None:
+        """Write state for the masked worlds only, then refresh their kinematics.
+
+        Each value is a full (num_worlds, ...) tensor; rows outside the mask are ignored. Selecting by mask keeps
+        this free of host syncs. Root velocities: linear in the world frame, angular in the body frame.
+        """
+        rows = mask.view(-1, 1)
+        pairs = [(self.dof_pos, dof_pos), (self.dof_vel, dof_vel)]
+        if self.floating_base:
+            pairs += [(self.root_pos, root_pos), (self.root_quat, root_quat),
+                      (self.root_lin_vel, root_lin_vel), (self.root_ang_vel, root_ang_vel)]
+        elif any(v is not None for v in (root_pos, root_quat, root_lin_vel, root_ang_vel)):
+            raise ValueError("root state written to a fixed-base model (env.asset.fixBaseLink is True)")
+        for view, value in pairs:
+            if value is not None:
+                view.copy_(torch.where(rows, value, view))
+        self.refresh_kinematics()
+
+    def recapture(self) -> None:
+        """Drop captured graphs; call after replacing Model arrays or changing solver options."""
+        self._graphs.clear()
+
+    # ------------------------------------------------------------- overflow
+    def poll_overflow(self) -> list[str]:
+        """Host-side check (syncs): warn once per bit seen since the last poll; returns the YAML keys named."""
+        seen = self._overflow_seen | self.overflow
+        bits = _or_all(seen)
+        self._overflow_seen.zero_()
+        keys = []
+        for bit, key in _OVERFLOW_KEYS.items():
+            if bits & bit and key not in keys:
+                keys.append(key)
+        if keys:
+            warnings.warn(
+                "MuJoCo Warp dropped contacts or constraint rows (overflow bits "
+                f"{mjw.OverflowType(bits & int(mjw.OverflowType.ALL))!r}); physics in the affected worlds is wrong. "
+                f"Raise {', '.join(keys)} in the task YAML.",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        return keys
+
+
+def _or_all(values: torch.Tensor) -> int:
+    out = 0
+    for v in np.unique(values.cpu().numpy()):
+        out |= int(v)
+    return out

@@ -1,0 +1,42 @@
+"""The task map: task name -> VecTask subclass.
+
+Register your own task without editing this package::
+
+    from isaacgymenvs_mw.tasks import register_task
+    register_task("MyTask", MyTask)           # or use @register_task("MyTask") on the class
+
+and point train.py at your module with ``+task_module=my_package.my_tasks`` (imported before the task is built),
+plus ``cfg/task/MyTask.yaml`` and ``cfg/train/MyTaskPPO.yaml``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.tasks.cartpole import Cartpole
+
+isaacgym_task_map: dict[str, type[VecTask]] = {
+    "Cartpole": Cartpole,
+}
+
+
+def register_task(name: str, task_class: type[VecTask] | None = None):
+    """Add a task class under ``name``; usable as a call or as a class decorator."""
+
+    def add(cls: type[VecTask]) -> type[VecTask]:
+        if not (isinstance(cls, type) and issubclass(cls, VecTask)):
+            raise TypeError(f"register_task('{name}'): {cls!r} is not a VecTask subclass")
+        isaacgym_task_map[name] = cls
+        return cls
+
+    return add(task_class) if task_class is not None else add
+
+
+def get_task_class(name: str) -> type[VecTask]:
+    if name not in isaacgym_task_map:
+        raise KeyError(f"Unknown task '{name}'. Available tasks: {sorted(isaacgym_task_map)}")
+    return isaacgym_task_map[name]
+
+
+__all__ = ["VecTask", "isaacgym_task_map", "register_task", "get_task_class"]

@@ -1,0 +1,334 @@
+"""VecTask: IsaacGymEnvs' vectorised-task contract over a batch of MuJoCo Warp worlds.
+
+A task subclasses VecTask and writes, in torch on ``self.device``:
+  * ``create_sim()``          -- optional; the default builds ``self.sim`` from the YAML ``env.asset``/``sim`` sections
+  * ``pre_physics_step(a)``   -- turn clipped actions into actuator commands (``self.sim.ctrl``)
+  * ``post_physics_step()``   -- ``progress_buf += 1``; rewards and ``reset_buf``; ``reset_idx``; observations
+  * ``reset_idx(env_mask)``   -- re-initialise the envs selected by a boolean mask of shape (num_envs,)
+  * ``compute_observations()`` -- fill ``obs_buf`` (and ``states_buf`` when numStates > 0)
+
+Resets are selected by masks, not index lists, so that a step never waits on the GPU (``nonzero()`` would).
+``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from isaacgymenvs_mw.sim import (
+    GroundPlane,
+    JointDrive,
+    ModelRequest,
+    Simulator,
+    SolverOptions,
+    build_model,
+    load_spec,
+    match_joint_values,
+    movable_joint_names,
+)
+from isaacgymenvs_mw.utils.device import resolve_device
+
+ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
+
+
+class VecTask:
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
+
+    def __init__(
+        self,
+        config: dict,
+        rl_device: str,
+        sim_device: str,
+        graphics_device_id: int,
+        headless: bool,
+        virtual_screen_capture: bool = False,
+        force_render: bool = False,
+    ) -> None:
+        self.cfg = config
+        env = config["env"]
+        self.sim_device = resolve_device(sim_device, "sim_device")
+        self.rl_device = resolve_device(rl_device, "rl_device")
+        self.device = self.sim_device
+        self.graphics_device_id = graphics_device_id
+        self.headless = headless
+        self.virtual_screen_capture = virtual_screen_capture
+        self.force_render = force_render
+
+        self.num_environments = _require_int(env, "numEnvs", minimum=1)
+        self.num_agents = int(env.get("numAgents", 1))
+        self.num_observations = _require_int(env, "numObservations", minimum=1)
+        self.num_states = int(env.get("numStates", 0))
+        self.num_actions = _require_int(env, "numActions", minimum=1)
+        self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
+        self.clip_obs = float(env.get("clipObservations", math.inf))
+        self.clip_actions = float(env.get("clipActions", math.inf))
+
+        self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
+        self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
+        self.act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
+
+        self.control_steps = 0
+        self.total_train_env_frames = 0
+        sim_cfg = config.get("sim", {})
+        self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
+
+        self.sim: Simulator | None = None
+        self.create_sim()
+        if self.sim is None:
+            raise RuntimeError(f"{type(self).__name__}.create_sim() must set self.sim")
+        self.dt = self.sim.dt
+        self.control_dt = self.dt * self.control_freq_inv
+
+        self.viewer = None
+        self.set_viewer()
+        self.allocate_buffers()
+        self.obs_dict: dict[str, torch.Tensor] = {}
+
+    # --------------------------------------------------------------- building
+    def create_sim(self) -> None:
+        """Build ``self.sim`` from the YAML: ``env.asset``, ``env.control`` drive settings and the ``sim`` section."""
+        self.sim = self.make_simulator(self.model_request())
+
+    def model_request(self) -> ModelRequest:
+        """What ``create_sim`` asks the sim layer to build; tasks extend it (contact bodies, base pose, ...)."""
+        env, sim = self.cfg["env"], self.cfg.get("sim", {})
+        asset = env.get("asset", {})
+        asset_file = self.asset_path(asset)
+        spec = load_spec(asset_file, asset.get("collapseFixedJoints", True))
+        joints = movable_joint_names(spec)
+        control = env.get("control", {})
+        default_mode = str(control.get("defaultDriveMode", "none"))
+        modes = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode", default_mode)
+        stiffness = match_joint_values(control.get("stiffness"), joints, "env.control.stiffness", 0.0)
+        damping = match_joint_values(control.get("damping"), joints, "env.control.damping", 0.0)
+        drives = {j: JointDrive(str(modes[j]), float(stiffness[j]), float(damping[j])) for j in joints}
+        plane = env.get("plane", {})
+        ground = GroundPlane(float(plane.get("friction", 1.0))) if plane.get("enabled", False) else None
+        return ModelRequest(
+            asset_file=asset_file,
+            fix_base=bool(asset.get("fixBaseLink", True)),
+            collapse_fixed_joints=bool(asset.get("collapseFixedJoints", True)),
+            self_collisions=bool(asset.get("selfCollisions", False)),
+            drives=drives,
+            armature=match_joint_values(asset.get("armature"), joints, "env.asset.armature"),
+            joint_damping=match_joint_values(asset.get("jointDamping"), joints, "env.asset.jointDamping"),
+            ground=ground,
+            options=solver_options(sim),
+        )
+
+    def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
+        sim = self.cfg.get("sim", {})
+        return Simulator(
+            build_model(request),
+            num_worlds=self.num_environments,
+            device=self.sim_device,
+            substeps=self.control_freq_inv,
+            nconmax=sim.get("nconmax"),
+            njmax=sim.get("njmax"),
+            per_world_fields=per_world_fields,
+            use_graphs=sim.get("useGraphs"),
+        )
+
+    def asset_path(self, asset_cfg: dict) -> Path:
+        root = asset_cfg.get("assetRoot") or ASSETS_DIR
+        name = asset_cfg.get("assetFileName")
+        if not name:
+            raise ValueError("env.asset.assetFileName is not set in the task YAML")
+        path = Path(root) / name
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"env.asset: asset file '{path}' does not exist (assetRoot='{root}', assetFileName='{name}')"
+            )
+        return path
+
+    def allocate_buffers(self) -> None:
+        n, dev = self.num_envs, self.device
+        self.obs_buf = torch.zeros((n, self.num_obs), device=dev, dtype=torch.float)
+        self.states_buf = torch.zeros((n, self.num_states), device=dev, dtype=torch.float)
+        self.rew_buf = torch.zeros(n, device=dev, dtype=torch.float)
+        self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
+        self.timeout_buf = torch.zeros(n, device=dev, dtype=torch.long)
+        self.progress_buf = torch.zeros(n, device=dev, dtype=torch.long)
+        self.randomize_buf = torch.zeros(n, device=dev, dtype=torch.long)
+        self.extras: dict[str, Any] = {}
+        self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
+
+    def set_viewer(self) -> None:
+        """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
+        if self.headless:
+            return
+        from isaacgymenvs_mw.sim.viewer import open_viewer  # deferred: only interactive runs need GLFW
+
+        self.viewer = open_viewer(self.sim)
+        if self.viewer is None:
+            self.headless = True
+
+    # -------------------------------------------------------------- properties
+    @property
+    def observation_space(self) -> gym.Space:
+        return self.obs_space
+
+    @property
+    def action_space(self) -> gym.Space:
+        return self.act_space
+
+    @property
+    def num_envs(self) -> int:
+        return self.num_environments
+
+    @property
+    def num_acts(self) -> int:
+        return self.num_actions
+
+    @property
+    def num_obs(self) -> int:
+        return self.num_observations
+
+    # ------------------------------------------------------------------ hooks
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        raise NotImplementedError
+
+    def post_physics_step(self) -> None:
+        raise NotImplementedError
+
+    def reset_idx(self, env_ids: torch.Tensor) -> None:
+        """Re-initialise the selected envs; the default does nothing (tasks override)."""
+
+    def compute_observations(self) -> None:
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- contract
+    def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
+        """A boolean (num_envs,) mask from a mask or an index tensor (IsaacGymEnvs passes indices)."""
+        if env_ids.dtype == torch.bool:
+            return env_ids
+        mask = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        mask[env_ids.to(self.device, torch.long)] = True
+        return mask
+
+    def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
+        """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
+        action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
+        self.pre_physics_step(action_tensor)
+        self.sim.simulate()
+        self.control_steps += 1
+
+        # post_physics_step adds one to progress_buf and may reset envs (which zeroes it); the step count at
+        # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
+        episode_step = self.progress_buf + 1
+        self.post_physics_step()
+        self.timeout_buf = ((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0)).long()
+
+        self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
+        self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
+        if self.num_states > 0:
+            self.obs_dict["states"] = self.get_state()
+
+        if self.control_steps % self.overflow_check_interval == 0:
+            self.sim.poll_overflow()
+        if self.viewer is not None:
+            self.render()
+        return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
+
+    def get_state(self) -> torch.Tensor:
+        return torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
+
+    def zero_actions(self) -> torch.Tensor:
+        return torch.zeros((self.num_envs, self.num_actions), dtype=torch.float32, device=self.rl_device)
+
+    def reset(self) -> dict[str, torch.Tensor]:
+        """Reset every env and return the first observations (call once before stepping)."""
+        self.reset_idx(self._all_envs)
+        self._compute_checked_observations()
+        return self._clamped_obs_dict()
+
+    def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
+        done = self.reset_buf != 0
+        self.reset_idx(done)
+        self.compute_observations()
+        return self._clamped_obs_dict(), done.nonzero(as_tuple=False).flatten()
+
+    def _clamped_obs_dict(self) -> dict[str, torch.Tensor]:
+        self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
+        if self.num_states > 0:
+            self.obs_dict["states"] = self.get_state()
+        return self.obs_dict
+
+    def _compute_checked_observations(self) -> None:
+        """compute_observations(), failing clearly when numObservations / numStates disagree with what it writes."""
+        self.obs_buf.fill_(math.nan)
+        self.states_buf.fill_(math.nan)
+        try:
+            self.compute_observations()
+        except RuntimeError as err:
+            if "size" in str(err) or "shape" in str(err):
+                raise ValueError(
+                    f"{type(self).__name__}: the observation it computes does not fit env.numObservations="
+                    f"{self.num_obs} / env.numStates={self.num_states} ({err})"
+                ) from err
+            raise
+        for key, buf, size in (("numObservations", self.obs_buf, self.num_obs), ("numStates", self.states_buf, self.num_states)):
+            written = (~torch.isnan(buf)).any(dim=0)
+            if size and not bool(written.all()):
+                raise ValueError(
+                    f"{type(self).__name__}: env.{key}={size} but the task wrote only {int(written.sum())} "
+                    f"columns; set env.{key} to the size the task computes"
+                )
+
+    def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
+        self.total_train_env_frames = env_frames
+
+    def get_env_state(self) -> None:
+        return None
+
+    def set_env_state(self, env_state: Any) -> None:
+        pass
+
+    # --------------------------------------------------------------- rendering
+    def render(self, mode: str = "rgb_array") -> None:
+        if self.viewer is not None and not self.viewer.sync(self.control_dt):
+            self.viewer = None  # the user closed the window: keep training
+        return None
+
+    def close(self) -> None:
+        if self.viewer is not None:
+            self.viewer.close()
+            self.viewer = None
+
+
+def solver_options(sim: dict) -> SolverOptions:
+    """The task YAML ``sim`` section as solver options (IsaacGymEnvs' ``dt`` and ``gravity`` keep their names)."""
+    defaults = SolverOptions()
+    return SolverOptions(
+        dt=float(sim.get("dt", defaults.dt)),
+        gravity=tuple(sim.get("gravity", defaults.gravity)),
+        integrator=str(sim.get("integrator", defaults.integrator)),
+        solver=str(sim.get("solver", defaults.solver)),
+        cone=str(sim.get("cone", defaults.cone)),
+        iterations=int(sim.get("iterations", defaults.iterations)),
+        ls_iterations=int(sim.get("ls_iterations", defaults.ls_iterations)),
+        impratio=float(sim.get("impratio", defaults.impratio)),
+        enable_contacts=bool(sim.get("enableContacts", defaults.enable_contacts)),
+    )
+
+
+def _require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:
+    if key not in section or section[key] is None:
+        if default is None:
+            raise ValueError(f"env.{key} is required in the task YAML")
+        return default
+    value = section[key]
+    try:
+        value = int(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"env.{key} must be an integer >= {minimum}, got {section[key]!r}") from None
+    if value < minimum:
+        raise ValueError(f"env.{key} must be >= {minimum}, got {value}")
+    return value

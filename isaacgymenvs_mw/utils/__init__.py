@@ -1,0 +1,1 @@
+"""Small shared helpers: devices, seeding, config access, torch rotations."""

@@ -1,0 +1,36 @@
+"""Device strings: 'auto', 'cpu', 'cuda', 'cuda:N'. Validated before anything is allocated."""
+
+from __future__ import annotations
+
+import re
+
+import torch
+
+
+def resolve_device(device: str, key: str = "sim_device") -> str:
+    """Turn a user device string into 'cpu' or 'cuda:N', or fail naming the key and the valid choices."""
+    device = str(device).strip().lower()
+    n_gpu = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    valid = ["auto", "cpu"] + (["cuda"] + [f"cuda:{i}" for i in range(n_gpu)] if n_gpu else [])
+    if device == "auto":
+        return "cuda:0" if n_gpu else "cpu"
+    if device == "cpu":
+        return "cpu"
+    match = re.fullmatch(r"(cuda|gpu)(?::(\d+))?", device)
+    if match is None:
+        raise ValueError(f"{key}='{device}' is not a device string; valid choices here: {valid}")
+    index = int(match.group(2) or 0)
+    if index >= n_gpu:
+        raise ValueError(
+            f"{key}='{device}' asks for a CUDA GPU but this machine has {n_gpu}; valid choices here: {valid}"
+        )
+    return f"cuda:{index}"
+
+
+def check_device_pair(sim_device: str, rl_device: str) -> None:
+    """The simulator and the learner may share a GPU, or the learner may sit on the CPU; two GPUs are not supported."""
+    if sim_device.startswith("cuda") and rl_device.startswith("cuda") and sim_device != rl_device:
+        raise ValueError(
+            f"sim_device='{sim_device}' and rl_device='{rl_device}' are different GPUs, which is not supported: "
+            "use the same cuda:N for both (or rl_device=cpu)"
+        )

@@ -1,0 +1,31 @@
+"""isaacgymenvs_mw: IsaacGymEnvs-style vectorised RL tasks on MuJoCo Warp."""
+
+from setuptools import find_packages, setup
+
+# Pinned where a minor release can change simulator behaviour or the training API:
+# mujoco / mujoco-warp / warp-lang move together (MJWarp 4.0 is built against warp 1.19),
+# and rsl-rl-lib 5 is the config schema (separate actor/critic) that cfg/train/*.yaml uses.
+INSTALL_REQUIRES = [
+    "torch>=2.5",
+    "warp-lang==1.19.0",
+    "mujoco==4.0.0",
+    "mujoco-warp==4.0.0",
+    "rsl-rl-lib>=5.5,<6",
+    "tensordict>=0.10",
+    "hydra-core>=1.3,<1.4",
+    "omegaconf>=2.3,<2.4",
+    "tensorboard>=2.14",
+    "gymnasium>=0.29",
+    "numpy>=1.26",
+]
+
+setup(
+    name="isaacgymenvs_mw",
+    version="0.1.0",
+    description="IsaacGymEnvs-style vectorised RL tasks (VecTask + YAML + train.py) on MuJoCo Warp",
+    packages=find_packages(include=["isaacgymenvs_mw", "isaacgymenvs_mw.*"]),
+    python_requires=">=3.10,<3.13",
+    install_requires=INSTALL_REQUIRES,
+    extras_require={"test": ["pytest>=7"]},
+    license="BSD-3-Clause",
+)
