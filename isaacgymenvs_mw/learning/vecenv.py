@@ -53,7 +53,7 @@ class EpisodeStats:
 
 
 class RslRlVecEnv(VecEnv):
-    """Presents a VecTask to rsl_rl: TensorDict observations ('policy', and 'critic' when numStates > 0)."""
+    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs) and 'critic' (states, or obs when numStates is 0)."""
 
     def __init__(self, task: VecTask) -> None:
         self.task = task
@@ -74,9 +74,8 @@ class RslRlVecEnv(VecEnv):
         self.task.progress_buf.copy_(value)
 
     def _to_tensordict(self, obs_dict: dict[str, torch.Tensor]) -> TensorDict:
-        groups = {"policy": obs_dict["obs"]}
-        if "states" in obs_dict:
-            groups["critic"] = obs_dict["states"]
+        # "critic" always exists, so one train YAML serves with and without privileged states (numStates 0).
+        groups = {"policy": obs_dict["obs"], "critic": obs_dict.get("states", obs_dict["obs"])}
         return TensorDict(groups, batch_size=[self.num_envs], device=self.device)
 
     def get_observations(self) -> TensorDict:

@@ -219,6 +219,23 @@ class Simulator:
                 view.copy_(torch.where(rows, value, view))
         self.refresh_kinematics()
 
+    def commit_model_changes(self) -> None:
+        """Recompute constants derived from masses, inertias, armature, ... after writing Model fields."""
+        with wp.ScopedDevice(self.wp_device):
+            mjw.set_const(self.model, self.data)
+        self.recapture()
+
+    def geom_id(self, name: str) -> int:
+        gid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)
+        if gid < 0:
+            raise KeyError(f"no geom named '{name}'")
+        return gid
+
+    def body_id(self, name: str) -> int:
+        if name not in self.body_names:
+            raise KeyError(f"no body named '{name}'; bodies: {self.body_names}")
+        return self.body_names.index(name)
+
     def recapture(self) -> None:
         """Drop captured graphs; call after replacing Model arrays or changing solver options."""
         self._graphs.clear()

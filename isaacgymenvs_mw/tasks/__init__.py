@@ -13,11 +13,15 @@ from __future__ import annotations
 
 from typing import Callable
 
+from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
+from isaacgymenvs_mw.tasks.go1 import Go1
 
 isaacgym_task_map: dict[str, type[VecTask]] = {
+    "Anymal": Anymal,
     "Cartpole": Cartpole,
+    "Go1": Go1,
 }
 
 

@@ -1,0 +1,352 @@
+"""Velocity-tracking locomotion on flat ground, shared by every legged robot (Anymal, Go1, ...).
+
+The robot gets a command (forward and sideways velocity, yaw rate), sampled from YAML ranges and resampled on
+a timer, and must follow it. Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
+Rewards are legged_gym's: one ``_reward_<name>`` method per term, weighted by ``rewards.scales.<name>`` times the
+policy dt; a zero scale removes the term. Everything a user would tune lives in the task YAML.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import torch
+
+from isaacgymenvs_mw.sim import ModelRequest, match_joint_values, movable_joint_names, load_spec
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
+
+POLICY_OBS = 48  # lin vel 3, ang vel 3, gravity 3, command 3, joint pos 12, joint vel 12, last action 12
+PRIVILEGED_EXTRA = 7  # friction, added base mass, base height, foot contacts 4
+
+
+class LeggedTask(VecTask):
+    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
+                 virtual_screen_capture=False, force_render=False):
+        self.cfg = cfg
+        env = cfg["env"]
+        self.record_eval_metrics = False
+        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
+                         virtual_screen_capture, force_render)
+        self.max_episode_length_s = float(env["episodeLength_s"])
+        self.max_episode_length = int(math.ceil(self.max_episode_length_s / self.control_dt))
+        self._init_joint_settings(env)
+        self._init_bodies(env["asset"])
+        self._init_buffers(env)
+        self._init_rewards(env["rewards"])
+        self._init_randomization(env.get("randomization", {}))
+
+    # ----------------------------------------------------------------- model
+    def model_request(self) -> ModelRequest:
+        request = super().model_request()
+        env = self.cfg["env"]
+        asset = env["asset"]
+        bodies = _body_names(load_spec(request.asset_file, request.collapse_fixed_joints))
+        sensed = []
+        for key in ("footBodies", "terminateContactBodies", "penalizeContactBodies"):
+            for body in _select(asset.get(key, []), bodies, f"env.asset.{key}"):
+                if body not in sensed:
+                    sensed.append(body)
+        request.contact_bodies = sensed
+        init = env["baseInitState"]
+        request.base_init_pos = tuple(init["pos"])
+        request.base_init_quat = tuple(init.get("rot", (1.0, 0.0, 0.0, 0.0)))
+        return request
+
+    def make_simulator(self, request, per_world_fields=()):
+        # Friction and mass are randomised per env, so those Model fields get one row per world.
+        return super().make_simulator(request, per_world_fields=("geom_friction", "body_mass"))
+
+    def _init_joint_settings(self, env: dict) -> None:
+        names = self.sim.dof_names
+        if len(names) != self.num_actions:
+            raise ValueError(f"env.numActions={self.num_actions} but the asset has {len(names)} joints: {names}")
+        angles = match_joint_values(env["defaultJointAngles"], names, "env.defaultJointAngles")
+        missing = [n for n in names if n not in angles]
+        if missing:
+            raise ValueError(f"env.defaultJointAngles gives no angle for joints {missing}; joints: {names}")
+        self.default_dof_pos = torch.tensor([float(angles[n]) for n in names], device=self.device)
+        self.action_scale = float(env["control"]["actionScale"])
+        limits = torch.tensor(self.sim.mj_model.jnt_range[-len(names):], device=self.device, dtype=torch.float)
+        soft = float(env["rewards"].get("softDofPosLimit", 1.0))
+        mid, half = limits.mean(dim=1), 0.5 * (limits[:, 1] - limits[:, 0])
+        self.soft_dof_pos_limits = torch.stack((mid - soft * half, mid + soft * half), dim=1)
+
+    def _init_bodies(self, asset: dict) -> None:
+        names = self.sim.body_names
+        self.feet = _select(asset["footBodies"], names, "env.asset.footBodies")
+        self.terminate_bodies = _select(asset.get("terminateContactBodies", []), names,
+                                        "env.asset.terminateContactBodies")
+        self.penalize_bodies = _select(asset.get("penalizeContactBodies", []), names,
+                                       "env.asset.penalizeContactBodies")
+        self.base_body = self.sim.body_id(asset.get("baseBody", names[1]))
+        self.ground_geom = self.sim.geom_id("ground")
+        sensed = list(self.sim.contact_sensors)
+        self._contact_cols = {b: i for i, b in enumerate(sensed)}
+        adr = torch.tensor([[self.sim.contact_sensors[b].adr + k for k in range(3)] for b in sensed],
+                           device=self.device)
+        self._contact_adr = adr
+        self._feet_idx = torch.tensor([self._contact_cols[b] for b in self.feet], device=self.device)
+        self._term_idx = torch.tensor([self._contact_cols[b] for b in self.terminate_bodies], device=self.device,
+                                      dtype=torch.long)
+        self._pen_idx = torch.tensor([self._contact_cols[b] for b in self.penalize_bodies], device=self.device,
+                                     dtype=torch.long)
+
+    def _init_buffers(self, env: dict) -> None:
+        n, dev, nj = self.num_envs, self.device, self.num_actions
+        self.actions = torch.zeros(n, nj, device=dev)
+        self.last_actions = torch.zeros(n, nj, device=dev)
+        self.last_dof_vel = torch.zeros(n, nj, device=dev)
+        self.commands = torch.zeros(n, 3, device=dev)
+        self.feet_air_time = torch.zeros(n, len(self.feet), device=dev)
+        self.last_contacts = torch.zeros(n, len(self.feet), dtype=torch.bool, device=dev)
+        self.gravity_vec = torch.tensor([0.0, 0.0, -1.0], device=dev).repeat(n, 1)
+        init = env["baseInitState"]
+        self.base_init_pos = torch.tensor(init["pos"], device=dev, dtype=torch.float).repeat(n, 1)
+        self.base_init_quat = torch.tensor(init.get("rot", [1.0, 0.0, 0.0, 0.0]), device=dev,
+                                           dtype=torch.float).repeat(n, 1)
+        self.reset_root_vel_range = float(env.get("resetRootVelocityRange", 0.5))
+        self.reset_dof_pos_scale = tuple(env.get("resetDofPosScale", [0.5, 1.5]))
+
+        cmd = env["commands"]
+        self.command_ranges = torch.tensor([cmd["linVelX"], cmd["linVelY"], cmd["yawRate"]], device=dev,
+                                           dtype=torch.float)
+        self.command_resample_steps = max(1, int(round(float(cmd["resamplingTime_s"]) / self.control_dt)))
+        self.min_command_norm = float(cmd.get("minLinearCommand", 0.0))
+
+        scales = env["obsScales"]
+        self.obs_scales = {k: float(v) for k, v in scales.items()}
+        self.commands_scale = torch.tensor([scales["linVel"], scales["linVel"], scales["angVel"]], device=dev)
+
+        self.base_lin_vel = torch.zeros(n, 3, device=dev)
+        self.base_ang_vel = torch.zeros(n, 3, device=dev)
+        self.projected_gravity = torch.zeros(n, 3, device=dev)
+        self.contact_force_norm = torch.zeros(n, len(self._contact_cols), device=dev)
+        self.torques = self.sim.qfrc_actuator[:, 6:]
+
+        expected_states = POLICY_OBS + PRIVILEGED_EXTRA
+        if self.num_obs != POLICY_OBS:
+            raise ValueError(f"env.numObservations={self.num_obs}, but legged tasks observe {POLICY_OBS} values")
+        if self.num_states not in (0, expected_states):
+            raise ValueError(f"env.numStates={self.num_states}: legged tasks give 0 (no privileged critic) or "
+                             f"{expected_states} (policy observation + friction, added mass, base height, 4 contacts)")
+
+    def _init_rewards(self, rew: dict) -> None:
+        available = sorted(name[len("_reward_"):] for name in dir(self) if name.startswith("_reward_"))
+        scales = dict(rew["scales"])
+        unknown = [k for k in scales if k not in available]
+        if unknown:
+            raise ValueError(f"env.rewards.scales: unknown reward term(s) {unknown}; available terms: {available}")
+        self.tracking_sigma = float(rew.get("trackingSigma", 0.25))
+        self.only_positive_rewards = bool(rew.get("onlyPositiveRewards", True))
+        self.base_height_target = float(rew.get("baseHeightTarget", 0.5))
+        self.air_time_target = float(rew.get("feetAirTimeTarget", 0.5))
+        # Zero-scale terms are not computed at all; the others are weighted by the policy dt (legged_gym).
+        self.reward_terms = [(name, getattr(self, f"_reward_{name}"), float(s) * self.control_dt)
+                             for name, s in scales.items() if float(s) != 0.0]
+        self.episode_sums = {name: torch.zeros(self.num_envs, device=self.device) for name, _, _ in self.reward_terms}
+
+    def _init_randomization(self, rand: dict) -> None:
+        n, dev = self.num_envs, self.device
+        friction = self.sim.model_field("geom_friction")
+        lo, hi = rand.get("frictionRange", [1.0, 1.0])
+        self.friction = lo + (hi - lo) * torch.rand(n, device=dev)
+        friction[:, self.ground_geom, 0] = self.friction
+        mass = self.sim.model_field("body_mass")
+        lo, hi = rand.get("addedMassRange", [0.0, 0.0])
+        self.added_mass = lo + (hi - lo) * torch.rand(n, device=dev)
+        mass[:, self.base_body] += self.added_mass
+        self.sim.commit_model_changes()
+        self.push_interval = (max(1, int(round(float(rand["pushInterval_s"]) / self.control_dt)))
+                              if rand.get("pushRobots", False) else 0)
+        self.max_push_vel = float(rand.get("maxPushVelXY", 0.0))
+        noise = rand.get("observationNoise", {})
+        level = float(noise.get("noiseLevel", 0.0)) if noise.get("enabled", False) else 0.0
+        s = self.obs_scales
+        nj = self.num_actions
+        self.noise_scale = level * torch.cat((
+            torch.full((3,), float(noise.get("linVel", 0.0)) * s["linVel"]),
+            torch.full((3,), float(noise.get("angVel", 0.0)) * s["angVel"]),
+            torch.full((3,), float(noise.get("gravity", 0.0))),
+            torch.zeros(3),
+            torch.full((nj,), float(noise.get("dofPos", 0.0)) * s["dofPos"]),
+            torch.full((nj,), float(noise.get("dofVel", 0.0)) * s["dofVel"]),
+            torch.zeros(nj),
+        )).to(dev)
+
+    # --------------------------------------------------------------- stepping
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        self.actions[:] = actions
+        self.sim.ctrl[:] = self.default_dof_pos + self.action_scale * actions
+
+    def post_physics_step(self) -> None:
+        self.progress_buf += 1
+        self._refresh_state()
+        self.check_termination()
+        self.compute_reward()
+        done = self.reset_buf != 0
+        self.reset_idx(done)
+        self._resample_commands((self.progress_buf % self.command_resample_steps == 0) & ~done)
+        if self.push_interval:
+            self._push((self.progress_buf % self.push_interval == 0) & (self.progress_buf > 0))
+        self._refresh_state()
+        self.compute_observations()
+        if self.record_eval_metrics:
+            err = torch.norm(self.commands[:, :2] - self.base_lin_vel[:, :2], dim=1)
+            self.extras["eval_metrics"] = {"lin_vel_tracking_error": err}
+        self.last_actions[:] = self.actions
+        self.last_dof_vel[:] = self.sim.dof_vel
+
+    def _refresh_state(self) -> None:
+        q = self.sim.root_quat
+        self.base_lin_vel[:] = quat_rotate_inverse(q, self.sim.root_lin_vel)
+        self.base_ang_vel[:] = self.sim.root_ang_vel
+        self.projected_gravity[:] = quat_rotate_inverse(q, self.gravity_vec)
+        forces = self.sim.sensordata[:, self._contact_adr]  # (N, bodies, 3)
+        self.contact_force_norm[:] = torch.norm(forces, dim=-1)
+
+    def check_termination(self) -> None:
+        hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)
+        timeout = self.progress_buf >= self.max_episode_length - 1
+        self.reset_buf[:] = (hit | timeout).long()
+        self.terminated = hit & ~timeout
+
+    def compute_reward(self) -> None:
+        self.rew_buf.zero_()
+        for name, fn, scale in self.reward_terms:
+            value = fn() * scale
+            self.rew_buf += value
+            self.episode_sums[name] += value
+        if self.only_positive_rewards:
+            self.rew_buf.clamp_(min=0.0)
+
+    def compute_observations(self) -> None:
+        s = self.obs_scales
+        obs = torch.cat((
+            self.base_lin_vel * s["linVel"],
+            self.base_ang_vel * s["angVel"],
+            self.projected_gravity,
+            self.commands * self.commands_scale,
+            (self.sim.dof_pos - self.default_dof_pos) * s["dofPos"],
+            self.sim.dof_vel * s["dofVel"],
+            self.actions,
+        ), dim=-1)
+        if self.num_states:
+            feet_contact = (self.contact_force_norm[:, self._feet_idx] > 1.0).float()
+            self.states_buf[:] = torch.cat((obs, self.friction.unsqueeze(1), self.added_mass.unsqueeze(1),
+                                            self.sim.root_pos[:, 2:3], feet_contact), dim=-1)
+        self.obs_buf[:] = obs + (2.0 * torch.rand_like(obs) - 1.0) * self.noise_scale
+
+    def reset_idx(self, env_ids: torch.Tensor) -> None:
+        mask = self.env_mask(env_ids)
+        n, dev = self.num_envs, self.device
+        lo, hi = self.reset_dof_pos_scale
+        dof_pos = self.default_dof_pos * (lo + (hi - lo) * torch.rand(n, self.num_actions, device=dev))
+        root_vel = self.reset_root_vel_range * (2.0 * torch.rand(n, 6, device=dev) - 1.0)
+        self.sim.reset_worlds(mask)
+        self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos),
+                             root_pos=self.base_init_pos, root_quat=self.base_init_quat,
+                             root_lin_vel=root_vel[:, :3], root_ang_vel=root_vel[:, 3:])
+        self._resample_commands(mask)
+        keep = ~mask
+        rows = keep.unsqueeze(1)
+        self.last_actions *= rows
+        self.actions *= rows
+        self.last_dof_vel *= rows
+        self.feet_air_time *= rows
+        self.last_contacts &= rows
+        self.progress_buf.masked_fill_(mask, 0)
+        # Report the finished episodes' per-term sums (summed over envs; the learner divides by the count).
+        done = mask.float()
+        self.extras["episode_terms"] = {name: (sums * done).sum() for name, sums in self.episode_sums.items()}
+        for sums in self.episode_sums.values():
+            sums *= keep
+
+    def _resample_commands(self, mask: torch.Tensor) -> None:
+        lo, hi = self.command_ranges[:, 0], self.command_ranges[:, 1]
+        new = lo + (hi - lo) * torch.rand(self.num_envs, 3, device=self.device)
+        small = torch.norm(new[:, :2], dim=1, keepdim=True) < self.min_command_norm
+        new[:, :2] = torch.where(small, torch.zeros_like(new[:, :2]), new[:, :2])
+        self.commands[:] = torch.where(mask.unsqueeze(1), new, self.commands)
+
+    def _push(self, mask: torch.Tensor) -> None:
+        kick = self.max_push_vel * (2.0 * torch.rand(self.num_envs, 2, device=self.device) - 1.0)
+        self.sim.root_lin_vel[:, :2] = torch.where(mask.unsqueeze(1), kick, self.sim.root_lin_vel[:, :2])
+
+    # ------------------------------------------------------------ reward terms
+    def _reward_tracking_lin_vel(self) -> torch.Tensor:
+        err = torch.sum(torch.square(self.commands[:, :2] - self.base_lin_vel[:, :2]), dim=1)
+        return torch.exp(-err / self.tracking_sigma)
+
+    def _reward_tracking_ang_vel(self) -> torch.Tensor:
+        err = torch.square(self.commands[:, 2] - self.base_ang_vel[:, 2])
+        return torch.exp(-err / self.tracking_sigma)
+
+    def _reward_lin_vel_z(self) -> torch.Tensor:
+        return torch.square(self.base_lin_vel[:, 2])
+
+    def _reward_ang_vel_xy(self) -> torch.Tensor:
+        return torch.sum(torch.square(self.base_ang_vel[:, :2]), dim=1)
+
+    def _reward_orientation(self) -> torch.Tensor:
+        return torch.sum(torch.square(self.projected_gravity[:, :2]), dim=1)
+
+    def _reward_base_height(self) -> torch.Tensor:
+        return torch.square(self.sim.root_pos[:, 2] - self.base_height_target)
+
+    def _reward_torques(self) -> torch.Tensor:
+        return torch.sum(torch.square(self.torques), dim=1)
+
+    def _reward_dof_vel(self) -> torch.Tensor:
+        return torch.sum(torch.square(self.sim.dof_vel), dim=1)
+
+    def _reward_dof_acc(self) -> torch.Tensor:
+        return torch.sum(torch.square((self.last_dof_vel - self.sim.dof_vel) / self.control_dt), dim=1)
+
+    def _reward_action_rate(self) -> torch.Tensor:
+        return torch.sum(torch.square(self.last_actions - self.actions), dim=1)
+
+    def _reward_collision(self) -> torch.Tensor:
+        return torch.sum((self.contact_force_norm[:, self._pen_idx] > 0.1).float(), dim=1)
+
+    def _reward_termination(self) -> torch.Tensor:
+        return self.terminated.float()
+
+    def _reward_dof_pos_limits(self) -> torch.Tensor:
+        q = self.sim.dof_pos
+        below = (self.soft_dof_pos_limits[:, 0] - q).clamp(min=0.0)
+        above = (q - self.soft_dof_pos_limits[:, 1]).clamp(min=0.0)
+        return torch.sum(below + above, dim=1)
+
+    def _reward_feet_air_time(self) -> torch.Tensor:
+        contact = self.contact_force_norm[:, self._feet_idx] > 1.0
+        touching = contact | self.last_contacts  # MuJoCo contacts can flicker for a step
+        self.last_contacts[:] = contact
+        first_contact = (self.feet_air_time > 0.0) & touching
+        self.feet_air_time += self.control_dt
+        reward = torch.sum((self.feet_air_time - self.air_time_target) * first_contact, dim=1)
+        reward *= torch.norm(self.commands[:, :2], dim=1) > 0.1  # no stepping reward for standing still
+        self.feet_air_time *= ~touching
+        return reward
+
+    def _reward_stand_still(self) -> torch.Tensor:
+        still = torch.norm(self.commands[:, :2], dim=1) < 0.1
+        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos), dim=1) * still
+
+
+def _body_names(spec) -> list[str]:
+    return [b.name for b in spec.bodies]
+
+
+def _select(patterns, names: list[str], key: str) -> list[str]:
+    """Bodies whose names match any of the regular expressions (full match), in model order."""
+    if isinstance(patterns, str):
+        patterns = [patterns]
+    out = []
+    for pattern in patterns:
+        hits = [n for n in names if re.fullmatch(pattern, n)]
+        if not hits:
+            raise ValueError(f"{key}: '{pattern}' matches no body; bodies: {names}")
+        out += [h for h in hits if h not in out]
+    return out
