@@ -64,6 +64,7 @@ class Runner(OnPolicyRunner):
         self.history: list[dict] = []
         self.total_env_steps = 0
         self.train_time = 0.0
+        self.nonfinite_resets = 0
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
@@ -119,6 +120,7 @@ class Runner(OnPolicyRunner):
         record = {"iteration": it + 1, "env_steps": self.total_env_steps, "time_s": self.train_time,
                   "steps_per_s": fps, **{k: v for k, v in stats.items()}}
         self.history.append(record)
+        self.nonfinite_resets += int(stats["nonfinite_resets"])
         if not self.is_main:
             return
         if writer is not None:
@@ -130,12 +132,17 @@ class Runner(OnPolicyRunner):
             writer.add_scalar("Perf/collection_time", collect_s, it)
             writer.add_scalar("Perf/learning_time", learn_s, it)
             for key, value in stats.items():
-                if key == "episodes":
+                if key in ("episodes", "nonfinite_resets"):
                     continue
                 tag = key if "/" in key else f"Train/{key}"
                 writer.add_scalar(tag, value, it)
                 if key in ("mean_episode_reward", "mean_episode_length"):
                     writer.add_scalar(f"{tag}/time", value, int(self.train_time))
+        if writer is not None:
+            writer.add_scalar("Sim/nonfinite_resets", self.nonfinite_resets, it)
+        if stats["nonfinite_resets"]:
+            print(f"[it {it + 1:>5}] {int(stats['nonfinite_resets'])} env(s) had NaN/inf simulator state and were "
+                  f"reset ({self.nonfinite_resets} so far)", flush=True)
         rew = f"{stats['mean_episode_reward']:9.2f}" if stats["episodes"] else "        -"
         length = f"{stats['mean_episode_length']:7.1f}" if stats["episodes"] else "      -"
         print(
@@ -150,7 +157,7 @@ class Runner(OnPolicyRunner):
         total = sum(s["episodes"] for s in self.recent)
         if total == 0:
             return {}
-        keys = [k for k in self.recent[-1] if k != "episodes"]
+        keys = [k for k in self.recent[-1] if k not in ("episodes", "nonfinite_resets")]
         return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
 
 
@@ -160,6 +167,8 @@ def evaluate(task, policy, device: str) -> dict:
     Each env contributes its first episode, so the result is an unbiased sample of ``num_envs`` episodes from
     the task's reset distribution (commands too, for the legged tasks).
     """
+    if hasattr(task, "record_eval_metrics"):
+        task.record_eval_metrics = True  # the task adds per-step metrics (e.g. velocity tracking error)
     env = RslRlVecEnv(task)
     n = env.num_envs
     ret = torch.zeros(n, device=env.device)

@@ -15,16 +15,18 @@ class EpisodeStats:
     def __init__(self, num_envs: int, device: str) -> None:
         self.ret = torch.zeros(num_envs, device=device)
         self.length = torch.zeros(num_envs, device=device)
-        # [count, return sum, length sum, timeouts]
-        self.totals = torch.zeros(4, device=device, dtype=torch.float64)
+        # [count, return sum, length sum, timeouts, worlds reset for NaN/inf state]
+        self.totals = torch.zeros(5, device=device, dtype=torch.float64)
         self.term_sums: dict[str, torch.Tensor] = {}
 
-    def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor) -> None:
+    def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor,
+               nonfinite: torch.Tensor) -> None:
         self.ret += rewards
         self.length += 1
         done = dones.float()
         self.totals += torch.stack(
-            (done.sum(), (self.ret * done).sum(), (self.length * done).sum(), (time_outs.float() * done).sum())
+            (done.sum(), (self.ret * done).sum(), (self.length * done).sum(), (time_outs.float() * done).sum(),
+             nonfinite.float().sum())
         ).double()
         keep = 1.0 - done
         self.ret *= keep
@@ -37,8 +39,8 @@ class EpisodeStats:
             self.term_sums[key] = value.double() if acc is None else acc + value.double()
 
     def pop(self) -> dict[str, float]:
-        count, ret, length, timeouts = self.totals.tolist()
-        out = {"episodes": count}
+        count, ret, length, timeouts, nonfinite = self.totals.tolist()
+        out = {"episodes": count, "nonfinite_resets": nonfinite}
         if count > 0:
             out.update(
                 mean_episode_reward=ret / count,
@@ -84,7 +86,7 @@ class RslRlVecEnv(VecEnv):
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         obs_dict, rew, reset, extras = self.task.step(actions)
         self._obs = self._to_tensordict(obs_dict)
-        self.stats.record(rew, reset, extras["time_outs"])
+        self.stats.record(rew, reset, extras["time_outs"], extras["nonfinite_resets"])
         if "episode_terms" in extras:
             self.stats.add_terms(extras.pop("episode_terms"))
         return self._obs, rew, reset, extras

@@ -192,6 +192,12 @@ class Simulator:
         self._reset_mask.copy_(mask)
         self._run("reset", lambda: mjw.reset_data(self.model, self.data, self._reset_mask_wp))
 
+    def reset_nonfinite(self) -> torch.Tensor:
+        """Reset worlds whose qpos or qvel holds NaN/inf (see ``reset_worlds``); returns their mask."""
+        bad = ~(torch.isfinite(self.qpos).all(dim=1) & torch.isfinite(self.qvel).all(dim=1))
+        self.reset_worlds(bad)
+        return bad
+
     def write_state(
         self,
         mask: torch.Tensor,

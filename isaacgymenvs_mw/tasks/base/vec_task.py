@@ -218,14 +218,20 @@ class VecTask:
         self.pre_physics_step(action_tensor)
         self.sim.simulate()
         self.control_steps += 1
+        # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
+        # its episode restarts and the step is reported as a termination, so training goes on.
+        blown_up = self.sim.reset_nonfinite()
+        self.progress_buf.masked_fill_(blown_up, 0)
 
         # post_physics_step adds one to progress_buf and may reset envs (which zeroes it); the step count at
         # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
         episode_step = self.progress_buf + 1
         self.post_physics_step()
-        self.timeout_buf = ((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0)).long()
+        self.reset_buf |= blown_up
+        self.timeout_buf = ((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up).long()
 
         self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
+        self.extras["nonfinite_resets"] = blown_up
         self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
         if self.num_states > 0:
             self.obs_dict["states"] = self.get_state()

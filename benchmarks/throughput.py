@@ -1,0 +1,97 @@
+"""Env-steps/s of one task, three ways, in one process on the task's own compiled model.
+
+  (a) physics:  the task's simulator replaying its captured graph (controlFrequencyInv MuJoCo Warp steps per
+                env step), nothing else;
+  (b) vectask:  VecTask.step with uniform random actions in [-1, 1], observations, rewards and resets included;
+  (c) train:    full rsl_rl PPO iterations (rollout + update) as train.py runs them.
+
+The ratio (b)/(a) is the framework's efficiency. Prints one JSON object.
+
+  python benchmarks/throughput.py --task Go1 --num_envs 4096 [--sim_device cuda:0] [--train_iterations 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import torch
+
+from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.learning.runner import Runner, device_description, package_versions, rsl_rl_config
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def _rate(fn, reps: int, num_envs: int, device: str) -> float:
+    _sync(device)
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        fn()
+    _sync(device)
+    return num_envs * reps / (time.perf_counter() - t0)
+
+
+def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_iterations: int,
+            overrides: list[str]) -> dict:
+    cfg = compose_config([f"task={task_name}", f"num_envs={num_envs}", f"sim_device={sim_device}",
+                          f"rl_device={sim_device}", "headless=True", *overrides])
+    task = build_task(cfg)
+    dev = task.sim_device
+    env = RslRlVecEnv(task)  # resets every env
+
+    def random_step() -> None:
+        task.step(2.0 * torch.rand(task.num_envs, task.num_actions, device=dev) - 1.0)
+
+    # Warm-up: kernels compiled and graphs captured, and the worlds in a typical mid-episode state.
+    for _ in range(50):
+        random_step()
+    vectask = _rate(random_step, steps, task.num_envs, dev)
+    task.sim.simulate()
+    physics = _rate(task.sim.simulate, steps, task.num_envs, dev)
+
+    train_cfg = rsl_rl_config(to_dict(cfg.train))
+    train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
+    runner = Runner(env, train_cfg, log_dir=None, device=dev)
+    runner.learn(1)  # warm-up iteration (optimizer state, first-iteration allocations)
+    _sync(dev)
+    t0 = time.perf_counter()
+    runner.learn(train_iterations)
+    _sync(dev)
+    train = train_cfg["num_steps_per_env"] * task.num_envs * train_iterations / (time.perf_counter() - t0)
+    return {
+        "task": task_name,
+        "num_envs": task.num_envs,
+        "controlFrequencyInv": task.control_freq_inv,
+        "physics_env_steps_per_s": physics,
+        "physics_steps_per_s": physics * task.control_freq_inv,
+        "vectask_env_steps_per_s": vectask,
+        "train_env_steps_per_s": train,
+        "ratio_vectask_over_physics": vectask / physics,
+        "device": device_description(dev),
+        "versions": package_versions(),
+        "date": time.strftime("%Y-%m-%d"),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="Cartpole")
+    parser.add_argument("--num_envs", type=int, default=4096)
+    parser.add_argument("--sim_device", default="auto")
+    parser.add_argument("--steps", type=int, default=300, help="timed env steps for (a) and (b)")
+    parser.add_argument("--train_iterations", type=int, default=5)
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides, e.g. task.sim.iterations=2")
+    args = parser.parse_args()
+    print(json.dumps(measure(args.task, args.num_envs, args.sim_device, args.steps, args.train_iterations,
+                             args.overrides)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
