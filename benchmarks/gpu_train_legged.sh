@@ -1,17 +1,22 @@
 #!/usr/bin/env bash
-# On a GPU machine: train a legged task with the shipped defaults, then evaluate the final policy on 1024 envs.
-# Usage: bash benchmarks/gpu_train_legged.sh TASK OUTDIR [extra train.py overrides...]
+# On a GPU machine: time-to-policy for one legged task with the shipped defaults, with a cold and a warm Warp
+# kernel cache, each followed by test mode on 1024 envs; then throughput at 4096 and 8192 envs and the no-sync check.
+# Usage: bash benchmarks/gpu_train_legged.sh TASK OUTDIR
 set -uo pipefail
-task=$1; out=$2; shift 2
+task=$1; out=$2
 mkdir -p "$out"
-start=$(date +%s.%N)
-python3 train.py task="$task" headless=True runs_dir="$out/runs" "$@" > "$out/$task.train.log" 2>&1
-rc=$?
-end=$(date +%s.%N)
-grep -E "^\[it +([0-9]*[05]0|1)/|\[train\]|Error|error" "$out/$task.train.log" | grep -v "^Module" | tail -20
-echo "$task train rc=$rc wall=$(echo "$end - $start" | bc) s"
-ckpt=$(ls -t "$out"/runs/"$task"/*/model_*.pt 2>/dev/null | head -1)
-[ -n "$ckpt" ] || exit 1
-python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 "$@" 2>&1 | grep "\[eval\] {"
-cp "$(dirname "$ckpt")/summary.json" "$out/$task.summary.json"
-cp "$ckpt" "$out/$task.model.pt"
+for cache in cold warm; do
+  [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp"
+  t0=$(date +%s.%N)
+  python3 train.py task="$task" headless=True runs_dir="$out/runs_$cache" > "$out/$task.$cache.log" 2>&1
+  rc=$?
+  t1=$(date +%s.%N)
+  grep -E "^\[it +(1|100|200|300|400|500)/|\[train\] done|Error" "$out/$task.$cache.log" | cut -c1-120
+  python3 -c "print('$task $cache: train.py rc=$rc, process wall %.1f s' % ($t1 - $t0))"
+  ckpt=$(ls -t "$out"/runs_$cache/"$task"/*/model_*.pt 2>/dev/null | head -1)
+  [ -n "$ckpt" ] || continue
+  python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 2>&1 | grep "\[eval\] {" | cut -c1-260
+  cp "$(dirname "$ckpt")/summary.json" "$out/$task.$cache.summary.json"
+done
+for n in 4096 8192; do python3 benchmarks/throughput.py --task "$task" --num_envs $n 2>/dev/null | tail -1 | tee -a "$out/throughput.jsonl" | cut -c1-330; done
+python3 benchmarks/check_no_sync.py --task "$task" --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/nosync.jsonl"
