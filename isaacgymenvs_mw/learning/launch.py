@@ -65,6 +65,8 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     run_dir = Path(cfg.runs_dir) / experiment / stamp
     is_main = rank == 0
+    if cfg.get("capture_video", False) and is_main:
+        _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval" if cfg.test else run_dir / "videos")
 
     if cfg.test:
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
@@ -120,6 +122,15 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
               f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
     task.close()
     return summary
+
+
+def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
+    """capture_video=True: film env 0 in real time, capture_video_len env steps every capture_video_freq."""
+    from isaacgymenvs_mw.sim.video import VideoRecorder  # deferred: only recording runs need a GL context
+
+    every, length = int(cfg.get("capture_video_freq", 1464)), int(cfg.get("capture_video_len", 100))
+    task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length)
+    print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)
 
 
 def _checkpoint_path(cfg: DictConfig) -> Path | None:

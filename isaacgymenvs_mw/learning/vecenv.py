@@ -17,7 +17,8 @@ class EpisodeStats:
         self.length = torch.zeros(num_envs, device=device)
         # [count, return sum, length sum, timeouts, worlds reset for NaN/inf state]
         self.totals = torch.zeros(5, device=device, dtype=torch.float64)
-        self.term_sums: dict[str, torch.Tensor] = {}
+        self._term_names: tuple[str, ...] = ()
+        self._term_acc: torch.Tensor | None = None
 
     def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor,
                nonfinite: torch.Tensor) -> None:
@@ -34,9 +35,11 @@ class EpisodeStats:
 
     def add_terms(self, episode_terms: dict[str, torch.Tensor]) -> None:
         """Task-reported per-term sums over the episodes that ended this step (already summed over envs)."""
-        for key, value in episode_terms.items():
-            acc = self.term_sums.get(key)
-            self.term_sums[key] = value.double() if acc is None else acc + value.double()
+        names = tuple(episode_terms)
+        values = torch.stack(tuple(episode_terms.values())).double()
+        if self._term_names != names:
+            self._term_names, self._term_acc = names, torch.zeros_like(values)
+        self._term_acc += values
 
     def pop(self) -> dict[str, float]:
         count, ret, length, timeouts, nonfinite = self.totals.tolist()
@@ -47,10 +50,11 @@ class EpisodeStats:
                 mean_episode_length=length / count,
                 timeout_fraction=timeouts / count,
             )
-            for key, value in self.term_sums.items():
-                out[f"Episode_Reward/{key}"] = float(value) / count
+            if self._term_acc is not None:
+                for key, value in zip(self._term_names, self._term_acc.tolist()):
+                    out[f"Episode_Reward/{key}"] = value / count
         self.totals.zero_()
-        self.term_sums = {}
+        self._term_names, self._term_acc = (), None  # made afresh inside the next rollout's inference mode
         return out
 
 

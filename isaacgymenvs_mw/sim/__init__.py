@@ -1,6 +1,31 @@
 """The simulator layer: the only package that imports mujoco / mujoco_warp."""
 
-from isaacgymenvs_mw.sim.builder import (
+import os as _os
+import sys as _sys
+
+
+def _choose_mujoco_gl() -> None:
+    """Pick MuJoCo's headless OpenGL backend before mujoco is first imported (it reads MUJOCO_GL on import).
+
+    Only on Linux without a display, and never over a MUJOCO_GL the user set: EGL where an NVIDIA GPU is visible,
+    OSMesa otherwise. A backend whose library is missing is not chosen: mujoco's import would then fail outright,
+    and only video recording needs one (sim/video.py says what to install).
+    """
+    if _os.environ.get("MUJOCO_GL") or not _sys.platform.startswith("linux"):
+        return
+    if _os.environ.get("DISPLAY") or _os.environ.get("WAYLAND_DISPLAY"):
+        return
+    from ctypes.util import find_library
+
+    if _os.path.exists("/dev/nvidia0") and find_library("EGL"):
+        _os.environ["MUJOCO_GL"] = "egl"
+    elif find_library("OSMesa"):
+        _os.environ["MUJOCO_GL"] = "osmesa"
+
+
+_choose_mujoco_gl()
+
+from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     DRIVE_MODES,
     GroundPlane,
     JointDrive,
@@ -11,7 +36,7 @@ from isaacgymenvs_mw.sim.builder import (
     match_joint_values,
     movable_joint_names,
 )
-from isaacgymenvs_mw.sim.simulator import Simulator
+from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 
 __all__ = [
     "DRIVE_MODES",

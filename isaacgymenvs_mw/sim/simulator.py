@@ -207,11 +207,13 @@ class Simulator:
         root_quat: torch.Tensor | None = None,
         root_lin_vel: torch.Tensor | None = None,
         root_ang_vel: torch.Tensor | None = None,
+        refresh: bool = True,
     ) -> None:
-        """Write state for the masked worlds only, then refresh their kinematics.
+        """Write state for the masked worlds only, then (``refresh``) recompute body poses from it.
 
         Each value is a full (num_worlds, ...) tensor; rows outside the mask are ignored. Selecting by mask keeps
         this free of host syncs. Root velocities: linear in the world frame, angular in the body frame.
+        A caller that reads only qpos/qvel until the next physics step may skip the refresh.
         """
         rows = mask.view(-1, 1)
         pairs = [(self.dof_pos, dof_pos), (self.dof_vel, dof_vel)]
@@ -223,7 +225,8 @@ class Simulator:
         for view, value in pairs:
             if value is not None:
                 view.copy_(torch.where(rows, value, view))
-        self.refresh_kinematics()
+        if refresh:
+            self.refresh_kinematics()
 
     def commit_model_changes(self) -> None:
         """Recompute constants derived from masses, inertias, armature, ... after writing Model fields."""

@@ -143,9 +143,12 @@ class LeggedTask(VecTask):
         self.base_height_target = float(rew.get("baseHeightTarget", 0.5))
         self.air_time_target = float(rew.get("feetAirTimeTarget", 0.5))
         # Zero-scale terms are not computed at all; the others are weighted by the policy dt (legged_gym).
-        self.reward_terms = [(name, getattr(self, f"_reward_{name}"), float(s) * self.control_dt)
-                             for name, s in scales.items() if float(s) != 0.0]
-        self.episode_sums = {name: torch.zeros(self.num_envs, device=self.device) for name, _, _ in self.reward_terms}
+        active = [(name, float(s)) for name, s in scales.items() if float(s) != 0.0]
+        self.reward_names = [name for name, _ in active]
+        self.reward_fns = [getattr(self, f"_reward_{name}") for name in self.reward_names]
+        self.reward_weights = torch.tensor([s * self.control_dt for _, s in active], device=self.device)
+        # One column per active term: per-episode sums, kept as one tensor so bookkeeping is a few kernels.
+        self.episode_sums = torch.zeros(self.num_envs, len(active), device=self.device)
 
     def _init_randomization(self, rand: dict) -> None:
         n, dev = self.num_envs, self.device
@@ -213,13 +216,13 @@ class LeggedTask(VecTask):
         self.terminated = hit & ~timeout
 
     def compute_reward(self) -> None:
-        self.rew_buf.zero_()
-        for name, fn, scale in self.reward_terms:
-            value = fn() * scale
-            self.rew_buf += value
-            self.episode_sums[name] += value
-        if self.only_positive_rewards:
-            self.rew_buf.clamp_(min=0.0)
+        if not self.reward_fns:
+            self.rew_buf.zero_()
+            return
+        terms = torch.stack([fn() for fn in self.reward_fns], dim=1) * self.reward_weights
+        self.episode_sums += terms
+        total = terms.sum(dim=1)
+        self.rew_buf[:] = total.clamp(min=0.0) if self.only_positive_rewards else total
 
     def compute_observations(self) -> None:
         s = self.obs_scales
@@ -247,7 +250,8 @@ class LeggedTask(VecTask):
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos),
                              root_pos=self.base_init_pos, root_quat=self.base_init_quat,
-                             root_lin_vel=root_vel[:, :3], root_ang_vel=root_vel[:, 3:])
+                             root_lin_vel=root_vel[:, :3], root_ang_vel=root_vel[:, 3:],
+                             refresh=False)  # observations read qpos/qvel only; the next step recomputes poses
         self._resample_commands(mask)
         keep = ~mask
         rows = keep.unsqueeze(1)
@@ -258,10 +262,9 @@ class LeggedTask(VecTask):
         self.last_contacts &= rows
         self.progress_buf.masked_fill_(mask, 0)
         # Report the finished episodes' per-term sums (summed over envs; the learner divides by the count).
-        done = mask.float()
-        self.extras["episode_terms"] = {name: (sums * done).sum() for name, sums in self.episode_sums.items()}
-        for sums in self.episode_sums.values():
-            sums *= keep
+        finished = (self.episode_sums * mask.unsqueeze(1)).sum(dim=0)
+        self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
+        self.episode_sums *= rows
 
     def _resample_commands(self, mask: torch.Tensor) -> None:
         lo, hi = self.command_ranges[:, 0], self.command_ranges[:, 1]

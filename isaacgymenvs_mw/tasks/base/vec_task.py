@@ -86,6 +86,7 @@ class VecTask:
         self.control_dt = self.dt * self.control_freq_inv
 
         self.viewer = None
+        self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
         self.set_viewer()
         self.allocate_buffers()
         self.obs_dict: dict[str, torch.Tensor] = {}
@@ -240,6 +241,8 @@ class VecTask:
             self.sim.poll_overflow()
         if self.viewer is not None:
             self.render()
+        if self.video_recorder is not None:
+            self.video_recorder.capture(self.control_steps)
         return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
 
     def get_state(self) -> torch.Tensor:
@@ -304,6 +307,9 @@ class VecTask:
         return None
 
     def close(self) -> None:
+        if self.video_recorder is not None:
+            self.video_recorder.close()  # writes out a clip in progress
+            self.video_recorder = None
         if self.viewer is not None:
             self.viewer.close()
             self.viewer = None

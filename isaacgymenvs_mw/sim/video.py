@@ -1,0 +1,270 @@
+"""Offscreen video of one world: MuJoCo's renderer on a host copy of that world's state, written as mp4 clips.
+
+A ``VideoRecorder`` is told each env step (``capture(step)``). Every ``every`` steps it records ``length`` steps:
+for each of those it copies the world's qpos/qvel from the device into a host ``MjData`` (a device->host sync),
+runs ``mj_forward`` there, renders one frame and streams it to ffmpeg. Between clips ``capture`` only compares two
+Python integers, so a run that records rarely pays almost nothing for it.
+
+Headless rendering needs an OpenGL backend chosen before mujoco is first imported: ``isaacgymenvs_mw.sim`` sets
+``MUJOCO_GL`` (EGL on NVIDIA machines, OSMesa on CPU machines) when no display is present and the user set none.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import weakref
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from isaacgymenvs_mw.sim.simulator import Simulator
+
+_BODY_RGBA = np.array([0.85, 0.55, 0.25, 1.0])
+_GROUND_RGBA = np.array([0.22, 0.27, 0.32, 1.0])
+_GRID_RGBA = np.array([0.55, 0.6, 0.65, 1.0], dtype=np.float32)
+_GRID_SPACING = 0.5  # m
+
+AUTO = "auto"  # track_body default: the floating base's body when there is one, a fixed view otherwise
+
+
+class VideoRecorder:
+    """Records world ``world`` of ``sim`` into ``out_dir/video_<step>.mp4``, ``length`` frames every ``every`` steps.
+
+    Args:
+        sim: the simulator whose world is filmed.
+        out_dir: folder for the clips (created on the first clip).
+        fps: frame rate of the files; one frame per env step, so 1 / control dt is real time.
+        width, height: frame size in pixels (even numbers: H.264 in yuv420p needs them).
+        track_body: "auto" follows the root body of a floating-base model and frames a fixed-base model from the
+            side; a body name follows that body; None always uses the fixed view.
+        every: a clip starts at env steps 1, 1 + every, 1 + 2 * every, ... (IsaacGymEnvs' capture_video_freq).
+        length: frames (env steps) per clip (IsaacGymEnvs' capture_video_len).
+        world: which world to film.
+    """
+
+    def __init__(
+        self,
+        sim: Simulator,
+        out_dir: str | os.PathLike,
+        fps: float,
+        width: int = 640,
+        height: int = 480,
+        track_body: str | None = AUTO,
+        every: int = 1464,
+        length: int = 100,
+        world: int = 0,
+    ) -> None:
+        if int(every) < 1 or int(length) < 1:
+            raise ValueError(f"capture_video_freq and capture_video_len must be >= 1, got {every} and {length}")
+        if width < 2 or height < 2 or width % 2 or height % 2:
+            raise ValueError(f"video width and height must be even numbers >= 2, got {width}x{height}")
+        if not (fps > 0 and math.isfinite(fps)):
+            raise ValueError(f"video fps must be a positive number, got {fps}")
+        if not 0 <= world < sim.num_worlds:
+            raise ValueError(f"world {world} is out of range: the simulator has {sim.num_worlds} worlds")
+        self.sim = sim
+        self.out_dir = Path(out_dir)
+        self.fps = float(fps)
+        self.width, self.height = int(width), int(height)
+        self.every, self.length = int(every), int(length)
+        self.world = int(world)
+        self.written: list[Path] = []
+
+        # A private copy: the offscreen buffer size is a model field, and the sim's host model stays untouched.
+        self.model = copy.copy(sim.mj_model)
+        self.model.vis.global_.offwidth = max(self.width, int(self.model.vis.global_.offwidth))
+        self.model.vis.global_.offheight = max(self.height, int(self.model.vis.global_.offheight))
+        self._style_model()
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_forward(self.model, self.data)  # qpos0: used to frame the model
+        self._planes = [g for g in range(self.model.ngeom)
+                        if int(self.model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)]
+
+        self.track_body_id = self._tracked_body(track_body)
+        self.camera = self._make_camera()
+        try:
+            self.renderer = mujoco.Renderer(self.model, height=self.height, width=self.width)
+        except Exception as err:
+            raise RuntimeError(
+                f"MuJoCo's offscreen renderer could not start (MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r}): "
+                f"{err}. Headless machines need an OpenGL backend: on NVIDIA GPUs MUJOCO_GL=egl (libEGL), on CPUs "
+                "MUJOCO_GL=osmesa with OSMesa installed (Debian/Ubuntu: apt-get install libosmesa6). "
+                "Set MUJOCO_GL before the first import of mujoco."
+            ) from err
+        # Release the GL context at the latest when the interpreter exits (MuJoCo's own __del__ fails then).
+        self._release = weakref.finalize(self, self.renderer.close)
+        self._writer = None
+        self._clip_start = 0
+        self._clip_frames = 0
+        self._clip_part: Path | None = None
+
+    # ------------------------------------------------------------------- looks
+    def _style_model(self) -> None:
+        """Make the copy readable on film: a brighter headlight (models built here have no lights), the robot in
+        a warm colour and the ground in a cool one where the asset left MuJoCo's default grey."""
+        m = self.model
+        m.vis.headlight.ambient[:] = 0.35
+        m.vis.headlight.diffuse[:] = 0.65
+        m.vis.headlight.specular[:] = 0.15
+        default_grey = np.array([0.5, 0.5, 0.5, 1.0])
+        for g in range(m.ngeom):
+            if not np.allclose(m.geom_rgba[g], default_grey) or int(m.geom_matid[g]) >= 0:
+                continue  # the asset chose a colour or material: keep it
+            is_plane = int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
+            m.geom_rgba[g] = _GROUND_RGBA if is_plane else _BODY_RGBA
+
+    def _add_floor_grid(self) -> None:
+        """Draw grid lines on each horizontal plane around the camera's target: without them a tracked robot
+        on a plain floor seems to walk on the spot."""
+        scene = self.renderer.scene
+        spacing = _GRID_SPACING
+        reach = math.ceil(2.5 * self.camera.distance / spacing) * spacing
+        cx = round(float(self.camera.lookat[0]) / spacing) * spacing
+        cy = round(float(self.camera.lookat[1]) / spacing) * spacing
+        offsets = np.arange(-reach, reach + spacing / 2, spacing)
+        for g in self._planes:
+            normal = self.data.geom_xmat[g].reshape(3, 3)[:, 2]
+            if normal[2] < 0.99:
+                continue  # only level ground
+            z = float(self.data.geom_xpos[g][2]) + 1e-3
+            for k in offsets:
+                for a, b in (((cx + k, cy - reach, z), (cx + k, cy + reach, z)),
+                             ((cx - reach, cy + k, z), (cx + reach, cy + k, z))):
+                    if scene.ngeom >= scene.maxgeom:
+                        return
+                    geom = scene.geoms[scene.ngeom]
+                    mujoco.mjv_initGeom(geom, int(mujoco.mjtGeom.mjGEOM_LINE), np.zeros(3), np.zeros(3),
+                                        np.eye(3).ravel(), _GRID_RGBA)
+                    mujoco.mjv_connector(geom, int(mujoco.mjtGeom.mjGEOM_LINE), 1.5,
+                                         np.array(a, dtype=float), np.array(b, dtype=float))
+                    scene.ngeom += 1
+
+    # ------------------------------------------------------------------ camera
+    def _tracked_body(self, track_body: str | None) -> int | None:
+        if track_body is None:
+            return None
+        if track_body == AUTO:
+            if not self.sim.floating_base:
+                return None
+            return int(self.model.jnt_bodyid[0])  # the body that carries the free joint
+        return self.sim.body_id(track_body)
+
+    def _model_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame bounding box (lo, hi) of every geom but planes, at the model's initial pose."""
+        m, d = self.model, self.data
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+        corners = []
+        for g in range(m.ngeom):
+            if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE):
+                continue
+            center, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
+            local = center + signs * half
+            corners.append(d.geom_xpos[g] + local @ d.geom_xmat[g].reshape(3, 3).T)
+        if not corners:
+            return np.full(3, -0.5), np.full(3, 0.5)
+        pts = np.concatenate(corners)
+        return pts.min(axis=0), pts.max(axis=0)
+
+    def _make_camera(self) -> mujoco.MjvCamera:
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        lo, hi = self._model_box()
+        size = hi - lo
+        if self.track_body_id is not None:
+            # Three-quarter view from the front left, at a distance that fits the robot a few times over;
+            # lookat follows the body each frame (set in _update_scene).
+            cam.azimuth, cam.elevation = 135.0, -20.0
+            cam.distance = max(1.0, 3.0 * float(np.max(size)))
+            cam.lookat[:] = self.data.xpos[self.track_body_id]
+            return cam
+        # Fixed side view: look across the longer horizontal axis, far enough back that the whole model fits.
+        center = (lo + hi) / 2
+        along_y = size[1] >= size[0]
+        cam.azimuth = 180.0 if along_y else 90.0  # 180: camera on +x looking at -x; 90: on -y looking at +y
+        cam.elevation = -10.0
+        half_w = size[1] / 2 if along_y else size[0] / 2
+        half_depth = size[0] / 2 if along_y else size[1] / 2
+        half_h = size[2] / 2
+        tan_v = math.tan(math.radians(float(self.model.vis.global_.fovy)) / 2)
+        tan_h = tan_v * self.width / self.height
+        cam.distance = 1.15 * max(half_w / tan_h, half_h / tan_v, 0.5) + half_depth
+        cam.lookat[:] = center
+        return cam
+
+    # --------------------------------------------------------------- rendering
+    def _sync(self) -> None:
+        """World ``self.world``'s state from the device into the host MjData (a device->host copy: a sync)."""
+        self.data.qpos[:] = self.sim.qpos[self.world].detach().cpu().numpy()
+        self.data.qvel[:] = self.sim.qvel[self.world].detach().cpu().numpy()
+        mujoco.mj_forward(self.model, self.data)
+        if self.track_body_id is not None:
+            self.camera.lookat[:] = self.data.xpos[self.track_body_id]
+
+    def render(self, segmentation: bool = False) -> np.ndarray:
+        """One frame of the world as it is now on the device: (height, width, 3) uint8 RGB.
+
+        With ``segmentation=True``: (height, width) int32 geom ids, -1 where no geom of the model is seen.
+        """
+        self._sync()
+        if segmentation:
+            self.renderer.enable_segmentation_rendering()
+            try:
+                self.renderer.update_scene(self.data, camera=self.camera)
+                seg = self.renderer.render()
+            finally:
+                self.renderer.disable_segmentation_rendering()
+            is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+            return np.where(is_geom, seg[..., 0], -1).astype(np.int32)
+        self.renderer.update_scene(self.data, camera=self.camera)
+        self._add_floor_grid()
+        return self.renderer.render()
+
+    # --------------------------------------------------------------- recording
+    @property
+    def recording(self) -> bool:
+        return self._writer is not None
+
+    def capture(self, step: int) -> None:
+        """Call once per env step with the number of env steps done so far (1 after the first step)."""
+        if self._writer is None and (step - 1) % self.every != 0:
+            return  # between clips: no device access at all
+        frame = np.ascontiguousarray(self.render())
+        if self._writer is None:
+            self._open(step)
+        self._writer.send(frame)
+        self._clip_frames += 1
+        if self._clip_frames >= self.length:
+            self._finish()
+
+    def _open(self, step: int) -> None:
+        import imageio_ffmpeg  # deferred: only recording runs need ffmpeg
+
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self._clip_start, self._clip_frames = int(step), 0
+        # Written under a temporary name and renamed when complete, so video_*.mp4 files are always whole.
+        self._clip_part = self.out_dir / f"video_{self._clip_start}.mp4.part"
+        self._writer = imageio_ffmpeg.write_frames(
+            str(self._clip_part), (self.width, self.height), fps=self.fps, codec="libx264", quality=7,
+            macro_block_size=1, pix_fmt_in="rgb24", pix_fmt_out="yuv420p", output_params=["-f", "mp4"],
+            ffmpeg_log_level="error",
+        )
+        self._writer.send(None)  # starts ffmpeg
+
+    def _finish(self) -> Path | None:
+        writer, part = self._writer, self._clip_part
+        self._writer, self._clip_part = None, None
+        if writer is None or part is None:
+            return None
+        writer.close()
+        path = self.out_dir / f"video_{self._clip_start}.mp4"
+        os.replace(part, path)
+        self.written.append(path)
+        return path
+
+    def close(self) -> None:
+        """Write out a clip in progress (shorter than ``length``) and release the renderer."""
+        self._finish()
+        self._release()  # runs renderer.close() once
