@@ -12,6 +12,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from isaacgymenvs_mw.learning.export import export_policy
 from isaacgymenvs_mw.learning.runner import (
     Runner,
     device_description,
@@ -72,6 +73,8 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
         _load(runner, checkpoint, task)
         policy = runner.get_inference_policy(device=task.rl_device)
+        onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported")
+        print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
         result = evaluate(task, policy, task.rl_device)
         result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
                       device=device_description(task.sim_device), versions=package_versions())

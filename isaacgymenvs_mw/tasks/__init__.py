@@ -5,7 +5,7 @@ Register your own task without editing this package::
     from isaacgymenvs_mw.tasks import register_task
     register_task("MyTask", MyTask)           # or use @register_task("MyTask") on the class
 
-and point train.py at your module with ``+task_module=my_package.my_tasks`` (imported before the task is built),
+and point train.py at your module with ``task_module=my_package.my_tasks`` (imported before the task is built),
 plus ``cfg/task/MyTask.yaml`` and ``cfg/train/MyTaskPPO.yaml``.
 """
 

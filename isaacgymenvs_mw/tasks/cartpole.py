@@ -7,6 +7,7 @@ import math
 import torch
 
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import whole_number
 
 
 class Cartpole(VecTask):
@@ -18,7 +19,7 @@ class Cartpole(VecTask):
         env = cfg["env"]
         self.reset_dist = float(env["resetDist"])
         self.max_push_effort = float(env["maxEffort"])
-        self.max_episode_length = int(env.get("maxEpisodeLength", 500))
+        self.max_episode_length = whole_number(env.get("maxEpisodeLength", 500), "env.maxEpisodeLength", 2)
         self.reset_position_noise = float(env.get("resetPositionNoise", 0.1))
         self.reset_velocity_noise = float(env.get("resetVelocityNoise", 0.25))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,

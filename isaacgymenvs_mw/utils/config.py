@@ -40,24 +40,27 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
         return compose(config_name="config", overrides=list(overrides))
 
 
+def whole_number(value, key: str, minimum: int) -> int:
+    """``value`` as an int >= minimum; booleans, fractions and text fail with a message naming ``key``."""
+    ok = not isinstance(value, bool)
+    if ok and isinstance(value, float):
+        ok = value.is_integer()
+    if ok:
+        try:
+            number = int(value)
+        except (TypeError, ValueError):
+            ok = False
+    if not ok or number < minimum:
+        raise ValueError(f"{key}={value!r} is invalid: give a whole number >= {minimum}")
+    return number
+
+
 def check_run_config(cfg: DictConfig) -> None:
     """Fail on run-level keys that are out of range, before anything is allocated."""
-    num_envs = cfg.get("num_envs", "")
-    if num_envs not in ("", None):
-        try:
-            ok = int(num_envs) >= 1
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise ValueError(f"num_envs={num_envs!r} is invalid: give a whole number >= 1 (or leave it empty)")
-    max_it = cfg.get("max_iterations", "")
-    if max_it not in ("", None):
-        try:
-            ok = int(max_it) >= 0
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            raise ValueError(f"max_iterations={max_it!r} is invalid: give a whole number >= 0")
+    for key, minimum in (("num_envs", 1), ("max_iterations", 0)):
+        value = cfg.get(key, "")
+        if value not in ("", None):
+            whole_number(value, key, minimum)
 
 
 def to_dict(cfg: DictConfig) -> dict:

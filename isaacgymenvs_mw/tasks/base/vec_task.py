@@ -32,6 +32,7 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
@@ -66,8 +67,8 @@ class VecTask:
         self.num_states = int(env.get("numStates", 0))
         self.num_actions = _require_int(env, "numActions", minimum=1)
         self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
-        self.clip_obs = float(env.get("clipObservations", math.inf))
-        self.clip_actions = float(env.get("clipActions", math.inf))
+        self.clip_obs = _positive(env, "clipObservations", math.inf)
+        self.clip_actions = _positive(env, "clipActions", math.inf)
 
         self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
         self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
@@ -336,11 +337,15 @@ def _require_int(section: dict, key: str, minimum: int, default: int | None = No
         if default is None:
             raise ValueError(f"env.{key} is required in the task YAML")
         return default
-    value = section[key]
+    return whole_number(section[key], f"env.{key}", minimum)
+
+
+def _positive(section: dict, key: str, default: float) -> float:
+    value = section.get(key, default)
     try:
-        value = int(value)
+        value = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"env.{key} must be an integer >= {minimum}, got {section[key]!r}") from None
-    if value < minimum:
-        raise ValueError(f"env.{key} must be >= {minimum}, got {value}")
+        raise ValueError(f"env.{key}={section[key]!r} is invalid: give a number > 0") from None
+    if not value > 0:
+        raise ValueError(f"env.{key}={value} is invalid: give a number > 0 (inf for no clipping)")
     return value

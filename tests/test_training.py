@@ -1,0 +1,102 @@
+"""Training and evaluation end to end: train.py on the command line, run artefacts, test mode, learning."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+
+from conftest import REPO_ROOT
+from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.utils.config import compose_config
+
+SUMMARY_KEYS = {"task", "num_envs", "iterations", "env_steps", "wall_time_s", "env_steps_per_s",
+                "mean_episode_reward", "mean_episode_length", "device", "versions"}
+
+
+def only_run_dir(runs: Path, experiment: str = "Cartpole") -> Path:
+    dirs = [p for p in (runs / experiment).iterdir() if p.is_dir()]
+    assert len(dirs) == 1, dirs
+    return dirs[0]
+
+
+def test_train_py_cli_with_overrides(tmp_path):
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=8", "max_iterations=2",
+           "headless=True", f"runs_dir={runs}", "sim_device=cpu", "rl_device=cpu"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    run_dir = only_run_dir(runs)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["task"] == "Cartpole"
+    assert summary["num_envs"] == 8
+    assert summary["iterations"] == 2
+    steps_per_env = compose_config(["task=Cartpole"]).train.runner.num_steps_per_env
+    assert summary["env_steps"] == 2 * steps_per_env * 8
+    assert (run_dir / "model_2.pt").is_file()
+    saved = OmegaConf.load(run_dir / "config.yaml")
+    assert saved.num_envs == 8 and saved.task.env.numEnvs == 8 and saved.train.runner.max_iterations == 2
+    # the run wrote only under runs_dir (Hydra's output_subdir is off; cwd was tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]
+
+
+def test_short_training_writes_artefacts_and_test_mode_evaluates(tmp_path, run_args):
+    n, iters = 16, 2
+    cfg = compose_config(["task=Cartpole", f"num_envs={n}", f"max_iterations={iters}", *run_args])
+    steps_per_env = cfg.train.runner.num_steps_per_env
+    summary = run(cfg)
+
+    run_dir = only_run_dir(tmp_path / "runs")
+    assert Path(summary["run_dir"]) == run_dir
+    on_disk = json.loads((run_dir / "summary.json").read_text())
+    assert SUMMARY_KEYS <= set(on_disk)
+    assert on_disk["task"] == "Cartpole" and on_disk["num_envs"] == n and on_disk["iterations"] == iters
+    assert on_disk["env_steps"] == iters * steps_per_env * n
+    assert on_disk["wall_time_s"] > 0 and on_disk["env_steps_per_s"] > 0
+    for key in ("mean_episode_reward", "mean_episode_length"):
+        assert isinstance(on_disk[key], float) and math.isfinite(on_disk[key])
+    assert 1 <= on_disk["mean_episode_length"] <= cfg.task.env.maxEpisodeLength - 1
+    assert on_disk["device"].startswith("cpu")
+    assert {"torch", "warp-lang", "mujoco", "mujoco-warp", "rsl-rl-lib"} <= set(on_disk["versions"])
+    assert len(on_disk["history"]) == iters
+
+    saved = OmegaConf.load(run_dir / "config.yaml")
+    assert saved.task.env.numEnvs == n and saved.train.runner.max_iterations == iters
+
+    ckpt = run_dir / f"model_{iters}.pt"
+    assert ckpt.is_file()
+    state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    assert state["iter"] == iters
+    first = [v for k, v in state["actor_state_dict"].items() if k.endswith(".weight")][0]
+    assert first.shape == (cfg.train.actor.hidden_dims[0], cfg.task.env.numObservations)
+
+    eval_cfg = compose_config(["task=Cartpole", f"num_envs={n}", "test=True", f"checkpoint={ckpt}", *run_args])
+    result = run(eval_cfg)
+    eval_path = run_dir / "eval.json"
+    assert eval_path.is_file()
+    written = json.loads(eval_path.read_text())
+    assert {"mean_episode_reward", "mean_episode_length", "episodes"} <= set(written)
+    assert written["episodes"] == n
+    assert 1 <= written["mean_episode_length"] <= cfg.task.env.maxEpisodeLength - 1
+    assert math.isfinite(written["mean_episode_reward"])
+    assert written["checkpoint"] == str(ckpt.resolve())
+    assert result["mean_episode_length"] == written["mean_episode_length"]
+    # test mode writes no new run directory
+    assert only_run_dir(tmp_path / "runs") == run_dir
+
+
+def test_cpu_training_learns_to_balance(tmp_path, run_args):
+    cfg = compose_config(["task=Cartpole", "num_envs=512", "max_iterations=40", "seed=42", *run_args])
+    summary = run(cfg)
+    untrained = summary["history"][0]["mean_episode_length"]  # episodes of the initial policy
+    trained = summary["mean_episode_length"]
+    assert trained >= 3 * untrained, (untrained, trained)
+    assert trained >= 200, (untrained, trained)
+    assert summary["mean_episode_reward"] > summary["history"][0]["mean_episode_reward"] + 100
