@@ -17,6 +17,9 @@ INSTALL_REQUIRES = [
     "tensorboard>=2.14",
     "gymnasium>=0.29",
     "numpy>=1.26",
+    # capture_video: mp4 through the ffmpeg binary that imageio-ffmpeg's wheels ship
+    "imageio>=2.30,<3",
+    "imageio-ffmpeg>=0.5,<1",
 ]
 
 setup(

@@ -174,8 +174,8 @@ class VideoRecorder:
         lo, hi = self._model_box()
         size = hi - lo
         if self.track_body_id is not None:
-            # Three-quarter view from the front left, at a distance that fits the robot a few times over;
-            # lookat follows the body each frame (set in _update_scene).
+            # Three-quarter view from the robot's front right (+x, -y), at a distance that fits it a few times
+            # over; lookat follows the body each frame (set in _sync).
             cam.azimuth, cam.elevation = 135.0, -20.0
             cam.distance = max(1.0, 3.0 * float(np.max(size)))
             cam.lookat[:] = self.data.xpos[self.track_body_id]

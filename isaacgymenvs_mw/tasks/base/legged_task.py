@@ -246,6 +246,8 @@ class LeggedTask(VecTask):
         n, dev = self.num_envs, self.device
         lo, hi = self.reset_dof_pos_scale
         dof_pos = self.default_dof_pos * (lo + (hi - lo) * torch.rand(n, self.num_actions, device=dev))
+        # Scaling the default can leave a joint's range (Go1's knee); start inside the soft limits instead.
+        dof_pos = torch.clamp(dof_pos, self.soft_dof_pos_limits[:, 0], self.soft_dof_pos_limits[:, 1])
         root_vel = self.reset_root_vel_range * (2.0 * torch.rand(n, 6, device=dev) - 1.0)
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos),

@@ -1,0 +1,191 @@
+"""capture_video: MuJoCo's offscreen renderer (OSMesa on CPU) films env 0 into mp4 clips, in real time."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+
+import isaacgymenvs_mw
+from isaacgymenvs_mw.sim.video import VideoRecorder
+from isaacgymenvs_mw.utils.config import compose_config
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+W, H = 192, 144  # small, even (H.264 in yuv420p needs even sizes); the 8 m Cartpole rail is framed whole
+
+
+def make(task: str, num_envs: int = 2):
+    return isaacgymenvs_mw.make(task, num_envs=num_envs, sim_device="cpu", rl_device="cpu", headless=True)
+
+
+def read_video(path: Path) -> tuple[np.ndarray, float]:
+    frames = iio.imread(path, plugin="FFMPEG")  # (n, h, w, 3)
+    fps = float(iio.immeta(path, plugin="FFMPEG")["fps"])
+    return frames, fps
+
+
+def drawn(frame: np.ndarray) -> bool:
+    """The scene is really drawn: not one flat colour, and the model's (warm) body colour in some pixels."""
+    colours = np.unique(frame.reshape(-1, 3), axis=0)
+    r, b = frame[..., 0].astype(int), frame[..., 2].astype(int)
+    warm = (r > 120) & (r > b + 40)
+    return len(colours) > 5 and warm.sum() >= 8
+
+
+def test_mujoco_gl_choice(monkeypatch):
+    from isaacgymenvs_mw import sim
+
+    monkeypatch.setattr(sim._sys, "platform", "linux")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setenv("MUJOCO_GL", "glfw")
+    sim._choose_mujoco_gl()
+    assert os.environ["MUJOCO_GL"] == "glfw"  # the user's choice is kept
+
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setenv("DISPLAY", ":0")
+    sim._choose_mujoco_gl()
+    assert "MUJOCO_GL" not in os.environ  # a display: MuJoCo's default (GLFW) is right
+
+    monkeypatch.delenv("DISPLAY")
+    monkeypatch.setattr(sim._os.path, "exists", lambda p: p == "/dev/nvidia0")
+    monkeypatch.setattr("ctypes.util.find_library", lambda name: f"lib{name}.so.1")
+    sim._choose_mujoco_gl()
+    assert os.environ["MUJOCO_GL"] == "egl"
+
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setattr(sim._os.path, "exists", lambda p: False)
+    sim._choose_mujoco_gl()
+    assert os.environ["MUJOCO_GL"] == "osmesa"
+
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setattr("ctypes.util.find_library", lambda name: None)
+    sim._choose_mujoco_gl()
+    assert "MUJOCO_GL" not in os.environ  # no library: left alone, so that `import mujoco` still works
+
+
+def test_cartpole_clips_frames_and_rate(tmp_path):
+    task = make("Cartpole")
+    task.reset()
+    rec = VideoRecorder(task.sim, tmp_path / "videos", fps=1.0 / task.control_dt, width=W, height=H,
+                        every=10, length=5)
+    syncs = []
+    real_sync = rec._sync
+    rec._sync = lambda: (syncs.append(task.control_steps), real_sync())[1]
+    task.video_recorder = rec
+
+    actions = torch.ones(task.num_envs, task.num_actions)
+    for _ in range(23):
+        task.step(actions)
+    # device state is read only while a clip records: steps 1-5, 11-15, 21-23
+    assert syncs == [1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 21, 22, 23]
+    assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == ["video_1.mp4", "video_11.mp4"]
+    task.close()  # flushes the clip in progress
+    assert task.video_recorder is None
+    names = sorted(p.name for p in (tmp_path / "videos").iterdir())  # and no partial file is left
+    assert names == ["video_1.mp4", "video_11.mp4", "video_21.mp4"]
+
+    for name, count in (("video_1.mp4", 5), ("video_11.mp4", 5), ("video_21.mp4", 3)):
+        frames, fps = read_video(tmp_path / "videos" / name)
+        assert frames.shape == (count, H, W, 3), name
+        assert fps == pytest.approx(1.0 / task.control_dt, rel=1e-3)  # real time: one frame per control step
+        assert all(drawn(f) for f in frames), name
+    # the cart is pushed along the rail all clip long: the picture changes
+    frames, _ = read_video(tmp_path / "videos" / "video_11.mp4")
+    assert np.abs(frames[-1].astype(int) - frames[0].astype(int)).mean() > 0.05
+
+
+def robot_pixels(rec: VideoRecorder, ground: int) -> tuple[int, np.ndarray | None]:
+    seg = rec.render(segmentation=True)
+    mask = (seg >= 0) & (seg != ground)
+    if mask.sum() == 0:
+        return 0, None
+    ys, xs = np.nonzero(mask)
+    return int(mask.sum()), np.array([xs.mean(), ys.mean()])
+
+
+def place_root(task, x: float) -> None:
+    n = task.num_envs
+    pos = torch.tensor([[x, 0.0, 0.34]]).repeat(n, 1)
+    quat = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1)
+    task.sim.write_state(torch.ones(n, dtype=torch.bool), root_pos=pos, root_quat=quat,
+                         root_lin_vel=torch.zeros(n, 3), root_ang_vel=torch.zeros(n, 3))
+
+
+def test_legged_camera_follows_the_root(tmp_path):
+    task = make("Go1")
+    task.reset()
+    ground = task.sim.geom_id("ground")
+    tracking = VideoRecorder(task.sim, tmp_path / "a", fps=50, width=160, height=120)
+    fixed = VideoRecorder(task.sim, tmp_path / "b", fps=50, width=160, height=120, track_body=None)
+    centre = np.array([160 / 2, 120 / 2])
+
+    place_root(task, 0.0)
+    rgb = tracking.render()
+    assert rgb.shape == (120, 160, 3) and drawn(rgb)
+    n0, c0 = robot_pixels(tracking, ground)
+    f0, fc0 = robot_pixels(fixed, ground)
+    place_root(task, 1.0)
+    n1, c1 = robot_pixels(tracking, ground)
+    f1, fc1 = robot_pixels(fixed, ground)
+
+    # the tracking camera keeps the robot, the same size, near the middle of the picture
+    assert n0 > 200 and n1 > 200
+    assert 0.8 < n1 / n0 < 1.25
+    assert np.linalg.norm(c0 - centre) < 0.2 * 160 and np.linalg.norm(c1 - centre) < 0.2 * 160
+    assert np.linalg.norm(c1 - c0) < 3.0
+    # control: a fixed camera sees the same 1 m move as a large shift (or loses the robot)
+    assert f0 > 200
+    assert fc1 is None or np.linalg.norm(fc1 - fc0) > 20.0
+
+    # and a clip written while the robot moves keeps it centred too
+    tracking.every, tracking.length = 1, 2
+    tracking.capture(1)
+    place_root(task, 2.0)
+    tracking.capture(2)
+    frames, fps = read_video(tmp_path / "a" / "video_1.mp4")
+    assert frames.shape == (2, 120, 160, 3) and fps == pytest.approx(50.0)
+    assert np.abs(frames[1].astype(int) - frames[0].astype(int)).mean() < 8.0
+    tracking.close()
+    fixed.close()
+    task.close()
+
+
+def test_train_and_test_mode_capture_video(tmp_path):
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "capture_video=True",
+           "capture_video_freq=16", "capture_video_len=8", "max_iterations=2", "num_envs=4", "headless=True",
+           "sim_device=cpu", "rl_device=cpu", f"runs_dir={runs}"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    (run_dir,) = [p for p in (runs / "Cartpole").iterdir() if p.is_dir()]
+    videos = sorted((run_dir / "videos").glob("*.mp4"))
+    cfg = compose_config(["task=Cartpole"])
+    control_dt = float(cfg.task.sim.dt) * int(cfg.task.env.controlFrequencyInv)
+    # Cartpole collects 16 steps per iteration: 32 env steps, clips start at steps 1 and 17
+    assert [p.name for p in videos] == ["video_1.mp4", "video_17.mp4"]
+    for path in videos:
+        frames, fps = read_video(path)
+        assert frames.shape == (8, 480, 640, 3)
+        assert fps == pytest.approx(1.0 / control_dt, rel=1e-3)
+        assert drawn(frames[0])
+
+    # test mode films the evaluation next to the checkpoint's eval.json
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "test=True",
+           f"checkpoint={run_dir / 'model_2.pt'}", "capture_video=True", "capture_video_freq=1000",
+           "capture_video_len=4", "num_envs=2", "headless=True", "sim_device=cpu", "rl_device=cpu",
+           f"runs_dir={runs}"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert (run_dir / "eval.json").is_file()
+    assert sorted(p.name for p in (run_dir / "videos_eval").iterdir()) == ["video_1.mp4"]
+    frames, _ = read_video(run_dir / "videos_eval" / "video_1.mp4")
+    assert frames.shape == (4, 480, 640, 3) and drawn(frames[-1])
