@@ -92,7 +92,7 @@ class RslRlVecEnv(VecEnv):
         self._obs = self._to_tensordict(obs_dict)
         self.stats.record(rew, reset, extras["time_outs"], extras["nonfinite_resets"])
         if "episode_terms" in extras:
-            self.stats.add_terms(extras["episode_terms"])
+            self.stats.add_terms(extras.pop("episode_terms"))
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

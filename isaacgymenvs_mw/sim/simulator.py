@@ -163,12 +163,7 @@ class Simulator:
                 with wp.ScopedCapture(device=self.wp_device) as capture:
                     fn()
             graph = self._graphs[name] = capture.graph
-        if torch.cuda.is_current_stream_capturing():
-            # Inside a whole-step capture (torch.cuda.graph): launch on torch's capturing stream so that this
-            # graph becomes a node of the step graph, ordered with the task's torch kernels.
-            wp.capture_launch(graph, stream=wp.stream_from_torch(torch.cuda.current_stream(self.device)))
-        else:
-            wp.capture_launch(graph)
+        wp.capture_launch(graph)
 
     def simulate(self) -> None:
         """Advance every world by ``substeps`` physics steps."""

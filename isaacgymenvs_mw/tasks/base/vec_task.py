@@ -14,7 +14,6 @@ Resets are selected by masks, not index lists, so that a step never waits on the
 from __future__ import annotations
 
 import math
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -161,18 +160,6 @@ class VecTask:
         self.randomize_buf = torch.zeros(n, device=dev, dtype=torch.long)
         self.extras: dict[str, Any] = {}
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
-        # Step outputs live in fixed buffers so that a captured step graph can write them.
-        self._obs_out = torch.zeros_like(self.obs_buf)
-        self._states_out = torch.zeros_like(self.states_buf)
-        self._nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
-        self._graph_actions = torch.zeros((n, self.num_actions), device=dev, dtype=torch.float)
-        self._step_graph = None
-        self._step_graph_failed: str | None = None
-        self._step_graph_warmup = 3
-        self._step_graph_wanted = (
-            bool(self.cfg.get("sim", {}).get("captureStep", True))
-            and self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == self.device
-        )
 
     def set_viewer(self) -> None:
         """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
@@ -229,37 +216,10 @@ class VecTask:
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
-        if self._use_step_graph():
-            self._graph_actions.copy_(actions)
-            if self._step_graph is None:
-                self._capture_step()
-        if self._step_graph is not None:
-            self._step_graph.replay()
-            self.sim.physics_steps += self.control_freq_inv  # the replay runs no Python
-        else:
-            self._device_step(actions)
-        self.control_steps += 1
-
-        self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
-        self.extras["nonfinite_resets"] = self._nonfinite_buf
-        # The next step rewrites the output buffers in place while the learner still holds this observation.
-        self.obs_dict["obs"] = self._obs_out.to(self.rl_device, copy=True)
-        if self.num_states > 0:
-            self.obs_dict["states"] = self._states_out.to(self.rl_device, copy=True)
-
-        if self.control_steps % self.overflow_check_interval == 0:
-            self.sim.poll_overflow()
-        if self.viewer is not None:
-            self.render()
-        if self.video_recorder is not None:
-            self.video_recorder.capture(self.control_steps)
-        return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
-
-    def _device_step(self, actions: torch.Tensor) -> None:
-        """Everything of a step that runs on the device, with no host sync: one CUDA graph when captured."""
         action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
         self.pre_physics_step(action_tensor)
         self.sim.simulate()
+        self.control_steps += 1
         # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
         # its episode restarts and the step is reported as a termination, so training goes on.
         blown_up = self.sim.reset_nonfinite()
@@ -270,31 +230,21 @@ class VecTask:
         episode_step = self.progress_buf + 1
         self.post_physics_step()
         self.reset_buf |= blown_up
-        self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
-        self._nonfinite_buf.copy_(blown_up)
-        self._obs_out = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs, out=self._obs_out)
+        self.timeout_buf = ((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up).long()
+
+        self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
+        self.extras["nonfinite_resets"] = blown_up
+        self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
         if self.num_states > 0:
-            self._states_out = torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs, out=self._states_out)
+            self.obs_dict["states"] = self.get_state()
 
-    def _use_step_graph(self) -> bool:
-        """Whole-step graphs: CUDA only, learner on the same GPU, after a few eager steps have warmed up."""
-        return (self._step_graph_wanted and self._step_graph_failed is None
-                and self.control_steps >= self._step_graph_warmup)
-
-    def _capture_step(self) -> None:
-        """Capture _device_step (task torch code and the simulator's Warp graphs) as one CUDA graph."""
-        graph = torch.cuda.CUDAGraph()
-        try:
-            torch.cuda.synchronize(self.device)
-            with torch.cuda.graph(graph):
-                self._device_step(self._graph_actions)
-        except Exception as err:  # an op that cannot be captured: keep stepping eagerly, and say so once
-            self._step_graph_failed = f"{type(err).__name__}: {err}"
-            warnings.warn(f"sim.captureStep: the step could not be captured as a CUDA graph, running it eagerly "
-                          f"({self._step_graph_failed.splitlines()[0]})", RuntimeWarning, stacklevel=3)
-            torch.cuda.synchronize(self.device)
-            return
-        self._step_graph = graph
+        if self.control_steps % self.overflow_check_interval == 0:
+            self.sim.poll_overflow()
+        if self.viewer is not None:
+            self.render()
+        if self.video_recorder is not None:
+            self.video_recorder.capture(self.control_steps)
+        return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
 
     def get_state(self) -> torch.Tensor:
         return torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
