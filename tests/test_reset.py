@@ -42,13 +42,29 @@ def check_partial_reset(task, before, chosen: np.ndarray):
     assert np.all(np.abs(pos) <= task.reset_position_noise)
     assert np.all(np.abs(vel) <= task.reset_velocity_noise)
     assert not np.any(pos == before["qpos"][sel].numpy()) and not np.any(vel == before["qvel"][sel].numpy())
-    # Derived quantities were recomputed for the new state: body poses match MuJoCo C kinematics.
+    # The reset also cleared what carries over between steps: commands of the chosen worlds.
+    assert torch.all(after["ctrl"][sel] == 0)
+
+
+def test_write_state_refreshes_derived_quantities_of_chosen_worlds_only(make_cartpole):
+    """sim.write_state(..., refresh=True): body poses of the written worlds match MuJoCo C kinematics."""
+    task = make_cartpole(N)
+    before = prepare(task)
+    chosen = np.array([0, 1, 1, 0, 0, 0, 1, 0], dtype=bool)
+    k = torch.arange(N, dtype=torch.float32)
+    pos = torch.stack((-0.3 + 0.05 * k, 0.7 - 0.1 * k), dim=1)
+    task.sim.write_state(torch.from_numpy(chosen), dof_pos=pos, dof_vel=torch.zeros_like(pos), refresh=True)
+    after = snapshot(task)
     model = task.sim.mj_model
-    for i in np.flatnonzero(chosen):
-        d = mj_data_from(model, after["qpos"][i].numpy(), after["qvel"][i].numpy())
-        mujoco.mj_kinematics(model, d)
-        np.testing.assert_allclose(after["xpos"][i].numpy(), d.xpos, atol=1e-5)
-        np.testing.assert_allclose(after["xquat"][i].numpy(), d.xquat, atol=1e-5)
+    for i in range(N):
+        if chosen[i]:
+            np.testing.assert_allclose(after["qpos"][i].numpy(), pos[i].numpy())
+            d = mj_data_from(model, after["qpos"][i].numpy(), after["qvel"][i].numpy())
+            mujoco.mj_kinematics(model, d)
+            np.testing.assert_allclose(after["xpos"][i].numpy(), d.xpos, atol=1e-5)
+            np.testing.assert_allclose(after["xquat"][i].numpy(), d.xquat, atol=1e-5)
+        else:
+            assert torch.equal(after["qpos"][i], before["qpos"][i])
 
 
 def test_reset_idx_with_boolean_mask(make_cartpole):

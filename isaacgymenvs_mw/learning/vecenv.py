@@ -91,8 +91,8 @@ class RslRlVecEnv(VecEnv):
         obs_dict, rew, reset, extras = self.task.step(actions)
         self._obs = self._to_tensordict(obs_dict)
         self.stats.record(rew, reset, extras["time_outs"], extras["nonfinite_resets"])
-        if "episode_terms" in extras:
-            self.stats.add_terms(extras.pop("episode_terms"))
+        if "episode_terms" in extras:  # tasks that report them set them every step
+            self.stats.add_terms(extras["episode_terms"])
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

@@ -84,8 +84,6 @@ class Simulator:
             self.data = mjw.make_data(mj_model, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
 
         self._bind_views()
-        self._reset_mask = torch.zeros(self.num_worlds, dtype=torch.bool, device=self.device)
-        self._reset_mask_wp = wp.from_torch(self._reset_mask, dtype=wp.bool)
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._graphs: dict[str, object] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
@@ -103,6 +101,11 @@ class Simulator:
         self.sensordata = wp.to_torch(d.sensordata)
         self.xfrc_applied = wp.to_torch(d.xfrc_applied)
         self.overflow = wp.to_torch(d.overflow)
+        self._qpos0 = wp.to_torch(self.model.qpos0)
+        self._zeroed_on_reset = [
+            self.qvel, self.ctrl, self.xfrc_applied, self.sensordata, self.overflow, wp.to_torch(d.time),
+            wp.to_torch(d.act), wp.to_torch(d.qacc_warmstart), wp.to_torch(d.qfrc_applied),
+        ]
 
         self.floating_base = m.njnt > 0 and int(m.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
         q0, v0 = (7, 6) if self.floating_base else (0, 0)
@@ -186,11 +189,16 @@ class Simulator:
     def reset_worlds(self, mask: torch.Tensor) -> None:
         """Return the masked worlds to the model's initial state (qpos0, zero velocity, no controls or forces).
 
-        Overflow bits of those worlds are folded into the run's record first: a reset clears them.
+        The state that carries from one step to the next is reset with torch ops (like ``mujoco_warp.reset_data``,
+        whose other fields, contacts and mass matrix, are recomputed by the next step anyway), so that a task's
+        whole post-physics step is plain torch work that a CUDA graph can hold. Overflow bits of those worlds are
+        folded into the run's record first: a reset clears them.
         """
         self._overflow_seen |= self.overflow
-        self._reset_mask.copy_(mask)
-        self._run("reset", lambda: mjw.reset_data(self.model, self.data, self._reset_mask_wp))
+        rows = mask.view(-1, 1)
+        self.qpos.copy_(torch.where(rows, self._qpos0, self.qpos))
+        for view in self._zeroed_on_reset:
+            view.masked_fill_(mask.view((-1,) + (1,) * (view.dim() - 1)), 0)
 
     def reset_nonfinite(self) -> torch.Tensor:
         """Reset worlds whose qpos or qvel holds NaN/inf (see ``reset_worlds``); returns their mask."""

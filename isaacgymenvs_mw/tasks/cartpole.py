@@ -58,7 +58,8 @@ class Cartpole(VecTask):
         pos = self.reset_position_noise * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         vel = self.reset_velocity_noise * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         self.sim.reset_worlds(mask)
-        self.sim.write_state(mask, dof_pos=pos, dof_vel=vel)
+        # Observations read joint positions and velocities only; body poses follow at the next physics step.
+        self.sim.write_state(mask, dof_pos=pos, dof_vel=vel, refresh=False)
         self.progress_buf.masked_fill_(mask, 0)
 
 

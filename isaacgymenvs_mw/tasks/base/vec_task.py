@@ -160,6 +160,17 @@ class VecTask:
         self.randomize_buf = torch.zeros(n, device=dev, dtype=torch.long)
         self.extras: dict[str, Any] = {}
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
+        # Step outputs live in fixed buffers so that a captured step graph can write them.
+        self._obs_out = torch.zeros_like(self.obs_buf)
+        self._states_out = torch.zeros_like(self.states_buf)
+        self._nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
+        self._graph_actions = torch.zeros((n, self.num_actions), device=dev, dtype=torch.float)
+        self._step_graphs: tuple[torch.cuda.CUDAGraph, torch.cuda.CUDAGraph] | None = None
+        self._step_graph_warmup = 3
+        self._step_graphs_wanted = (
+            bool(self.cfg.get("sim", {}).get("captureStep", True))
+            and self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == self.device
+        )
 
     def set_viewer(self) -> None:
         """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
@@ -216,10 +227,41 @@ class VecTask:
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
+        if self._use_step_graphs():
+            self._graph_actions.copy_(actions)
+            if self._step_graphs is None:
+                self._capture_step_graphs()
+            before, after = self._step_graphs
+            before.replay()
+            self.sim.simulate()
+            after.replay()
+        else:
+            self._before_physics(actions)
+            self.sim.simulate()
+            self._after_physics()
+        self.control_steps += 1
+
+        self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
+        self.extras["nonfinite_resets"] = self._nonfinite_buf
+        # The next step rewrites the output buffers in place while the learner still holds this observation.
+        self.obs_dict["obs"] = self._obs_out.to(self.rl_device, copy=True)
+        if self.num_states > 0:
+            self.obs_dict["states"] = self._states_out.to(self.rl_device, copy=True)
+
+        if self.control_steps % self.overflow_check_interval == 0:
+            self.sim.poll_overflow()
+        if self.viewer is not None:
+            self.render()
+        if self.video_recorder is not None:
+            self.video_recorder.capture(self.control_steps)
+        return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
+
+    def _before_physics(self, actions: torch.Tensor) -> None:
         action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
         self.pre_physics_step(action_tensor)
-        self.sim.simulate()
-        self.control_steps += 1
+
+    def _after_physics(self) -> None:
+        """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
         # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
         # its episode restarts and the step is reported as a termination, so training goes on.
         blown_up = self.sim.reset_nonfinite()
@@ -230,21 +272,35 @@ class VecTask:
         episode_step = self.progress_buf + 1
         self.post_physics_step()
         self.reset_buf |= blown_up
-        self.timeout_buf = ((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up).long()
-
-        self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
-        self.extras["nonfinite_resets"] = blown_up
-        self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
+        self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
+        self._nonfinite_buf.copy_(blown_up)
+        torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs, out=self._obs_out)
         if self.num_states > 0:
-            self.obs_dict["states"] = self.get_state()
+            torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs, out=self._states_out)
 
-        if self.control_steps % self.overflow_check_interval == 0:
-            self.sim.poll_overflow()
-        if self.viewer is not None:
-            self.render()
-        if self.video_recorder is not None:
-            self.video_recorder.capture(self.control_steps)
-        return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
+    def _use_step_graphs(self) -> bool:
+        """Step graphs: CUDA only, learner on the same GPU, after a few eager steps have compiled and warmed up."""
+        return self._step_graphs_wanted and self.control_steps >= self._step_graph_warmup
+
+    def _capture_step_graphs(self) -> None:
+        """Capture the torch work before and after the physics as two CUDA graphs (the physics is a third).
+
+        Each step then costs three graph launches instead of a few hundred kernel launches from Python.
+        """
+        before, after = torch.cuda.CUDAGraph(), torch.cuda.CUDAGraph()
+        torch.cuda.synchronize(self.device)
+        try:
+            with torch.cuda.graph(before):
+                self._before_physics(self._graph_actions)
+            with torch.cuda.graph(after, pool=before.pool()):
+                self._after_physics()
+        except Exception as err:
+            raise RuntimeError(
+                f"sim.captureStep: {type(self).__name__}'s step could not be captured as CUDA graphs ({err}). "
+                "A task whose post_physics_step syncs with the host or launches Warp kernels cannot be captured: "
+                "run with +task.sim.captureStep=False"
+            ) from err
+        self._step_graphs = (before, after)
 
     def get_state(self) -> torch.Tensor:
         return torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
