@@ -29,6 +29,6 @@ setup(
     packages=find_packages(include=["isaacgymenvs_mw", "isaacgymenvs_mw.*"]),
     python_requires=">=3.10,<3.13",
     install_requires=INSTALL_REQUIRES,
-    extras_require={"test": ["pytest>=7"]},
+    extras_require={"test": ["pytest>=7", "onnxruntime>=1.17"]},  # onnxruntime: the exported-policy test
     license="BSD-3-Clause",
 )
