@@ -64,7 +64,7 @@ class VecTask:
         self.num_environments = _require_int(env, "numEnvs", minimum=1)
         self.num_agents = int(env.get("numAgents", 1))
         self.num_observations = _require_int(env, "numObservations", minimum=1)
-        self.num_states = int(env.get("numStates", 0))
+        self.num_states = _require_int(env, "numStates", minimum=0, default=0)
         self.num_actions = _require_int(env, "numActions", minimum=1)
         self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
         self.clip_obs = _positive(env, "clipObservations", math.inf)
