@@ -66,10 +66,11 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     run_dir = Path(cfg.runs_dir) / experiment / stamp
     is_main = rank == 0
-    if cfg.get("capture_video", False) and is_main:
-        _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval" if cfg.test else run_dir / "videos")
+    videos = cfg.get("capture_video", False) and is_main
 
     if cfg.test:
+        if videos:
+            _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval")
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
         _load(runner, checkpoint, task)
         policy = runner.get_inference_policy(device=task.rl_device)
@@ -85,13 +86,16 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         task.close()
         return result
 
-    if is_main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    runner = Runner(env, train_cfg, log_dir=str(run_dir) if is_main else None, device=task.rl_device)
+    runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
     if checkpoint is not None:
         _load(runner, checkpoint, task)
         print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
+    if is_main:
+        run_dir = _new_run_dir(run_dir)
+        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+        runner.log_dir = str(run_dir)
+        if videos:
+            _attach_video_recorder(cfg, task, run_dir / "videos")
     print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
           f"{max_iterations} iterations, run dir {run_dir}", flush=True)
     start_it = runner.current_learning_iteration
@@ -134,6 +138,19 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
     every, length = int(cfg.get("capture_video_freq", 1464)), int(cfg.get("capture_video_len", 100))
     task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length)
     print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)
+
+
+def _new_run_dir(path: Path) -> Path:
+    """Create the run directory; runs started in the same second get _1, _2, ... instead of sharing one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    candidate, n = path, 0
+    while True:
+        try:
+            candidate.mkdir()
+            return candidate
+        except FileExistsError:
+            n += 1
+            candidate = path.with_name(f"{path.name}_{n}")
 
 
 def _checkpoint_path(cfg: DictConfig) -> Path | None:

@@ -271,6 +271,9 @@ class VecTask:
         # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
         episode_step = self.progress_buf + 1
         self.post_physics_step()
+        # The blown-up step earns nothing and its env starts the next step at progress 0, like any reset env.
+        self.rew_buf.masked_fill_(blown_up, 0.0)
+        self.progress_buf.masked_fill_(blown_up, 0)
         self.reset_buf |= blown_up
         self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
         self._nonfinite_buf.copy_(blown_up)
