@@ -1,6 +1,5 @@
 """A user's module that registers a task on import (used through the `task_module=` run key in the tests)."""
 
-import torch
 
 from isaacgymenvs_mw.tasks import register_task
 from isaacgymenvs_mw.tasks.cartpole import Cartpole

@@ -11,8 +11,6 @@ plus ``cfg/task/MyTask.yaml`` and ``cfg/train/MyTaskPPO.yaml``.
 
 from __future__ import annotations
 
-from typing import Callable
-
 from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole

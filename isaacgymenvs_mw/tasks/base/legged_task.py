@@ -13,7 +13,7 @@ import re
 
 import torch
 
-from isaacgymenvs_mw.sim import ModelRequest, match_joint_values, movable_joint_names, load_spec
+from isaacgymenvs_mw.sim import ModelRequest, match_joint_values, load_spec
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
 
