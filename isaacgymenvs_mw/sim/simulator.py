@@ -142,15 +142,20 @@ class Simulator:
         """Torch view of a Model array (per-world fields have num_worlds rows)."""
         return wp.to_torch(getattr(self.model, name))
 
-    def contact_forces(self, bodies: Sequence[str]) -> torch.Tensor:
-        """Net contact force on each named body, (num_worlds, len(bodies), 3). Bodies need a contact sensor."""
+    def contact_columns(self, bodies: Sequence[str]) -> torch.Tensor:
+        """Columns of ``sensordata`` holding each body's net contact force, (len(bodies), 3); build once, reuse.
+
+        ``sensordata[:, contact_columns(bodies)]`` is then (num_worlds, len(bodies), 3) with no host transfer.
+        """
         missing = [b for b in bodies if b not in self.contact_sensors]
         if missing:
             raise KeyError(f"no contact sensor on bodies {missing}; sensed bodies: {list(self.contact_sensors)}")
-        cols = torch.tensor(
-            [[self.contact_sensors[b].adr + k for k in range(3)] for b in bodies], device=self.device
-        )
-        return self.sensordata[:, cols]
+        return torch.tensor([[self.contact_sensors[b].adr + k for k in range(3)] for b in bodies],
+                            device=self.device, dtype=torch.long).view(len(bodies), 3)
+
+    def contact_forces(self, bodies: Sequence[str]) -> torch.Tensor:
+        """Net contact force on each named body, (num_worlds, len(bodies), 3). Bodies need a contact sensor."""
+        return self.sensordata[:, self.contact_columns(bodies)]
 
     # ------------------------------------------------------------ execution
     def _run(self, name: str, fn: Callable[[], None]) -> None:

@@ -83,15 +83,15 @@ class LeggedTask(VecTask):
         self.base_body = self.sim.body_id(asset.get("baseBody", names[1]))
         self.ground_geom = self.sim.geom_id("ground")
         sensed = list(self.sim.contact_sensors)
-        self._contact_cols = {b: i for i, b in enumerate(sensed)}
-        adr = torch.tensor([[self.sim.contact_sensors[b].adr + k for k in range(3)] for b in sensed],
-                           device=self.device)
-        self._contact_adr = adr
-        self._feet_idx = torch.tensor([self._contact_cols[b] for b in self.feet], device=self.device)
-        self._term_idx = torch.tensor([self._contact_cols[b] for b in self.terminate_bodies], device=self.device,
-                                      dtype=torch.long)
-        self._pen_idx = torch.tensor([self._contact_cols[b] for b in self.penalize_bodies], device=self.device,
-                                     dtype=torch.long)
+        self._contact_adr = self.sim.contact_columns(sensed)
+        position = {b: i for i, b in enumerate(sensed)}
+
+        def rows(bodies: list[str]) -> torch.Tensor:
+            return torch.tensor([position[b] for b in bodies], device=self.device, dtype=torch.long)
+
+        self._feet_idx = rows(self.feet)
+        self._term_idx = rows(self.terminate_bodies)
+        self._pen_idx = rows(self.penalize_bodies)
 
     def _init_buffers(self, env: dict) -> None:
         n, dev, nj = self.num_envs, self.device, self.num_actions
@@ -122,7 +122,7 @@ class LeggedTask(VecTask):
         self.base_lin_vel = torch.zeros(n, 3, device=dev)
         self.base_ang_vel = torch.zeros(n, 3, device=dev)
         self.projected_gravity = torch.zeros(n, 3, device=dev)
-        self.contact_force_norm = torch.zeros(n, len(self._contact_cols), device=dev)
+        self.contact_force_norm = torch.zeros(n, self._contact_adr.shape[0], device=dev)
         self.torques = self.sim.qfrc_actuator[:, 6:]
 
         expected_states = POLICY_OBS + PRIVILEGED_EXTRA
