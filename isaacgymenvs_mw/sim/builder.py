@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -230,11 +230,3 @@ def _apply_options(spec: mujoco.MjSpec, o: SolverOptions) -> None:
     if not o.enable_contacts:
         spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
 
-
-def actuated_joint_ids(model: mujoco.MjModel) -> np.ndarray:
-    """Joint id driven by each actuator, in actuator order."""
-    return np.asarray(model.actuator_trnid[:, 0], dtype=np.int64)
-
-
-def body_ids(model: mujoco.MjModel, names: Iterable[str]) -> list[int]:
-    return [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]
