@@ -1,7 +1,7 @@
 """Env-steps/s of one task, three ways, in one process on the task's own compiled model.
 
   (a) physics:  the task's simulator replaying its captured graph (controlFrequencyInv MuJoCo Warp steps per
-                env step), nothing else;
+                env step), nothing else, in short runs from the states that (b) reaches (see _physics_rate);
   (b) vectask:  VecTask.step with uniform random actions in [-1, 1], observations, rewards and resets included;
   (c) train:    full rsl_rl PPO iterations (rollout + update) as train.py runs them.
 
@@ -38,6 +38,41 @@ def _rate(fn, reps: int, num_envs: int, device: str) -> float:
     return num_envs * reps / (time.perf_counter() - t0)
 
 
+def _physics_rate(task, advance, steps: int, chunk: int = 5, between: int = 3) -> float:
+    """(a), in the states that (b) visits: runs of ``chunk`` bare physics env steps, each from a state the task
+    has just reached (``between`` task steps on), after which that state is put back.
+
+    Stepping the physics alone for hundreds of steps from wherever (b) stopped would time another workload:
+    with the controls frozen, Cartpole's carts run into the rail's limits and legged robots settle or fall,
+    and the solver's cost follows the contacts and constraints. On CUDA each run is timed on the GPU between two
+    events, so the untimed task steps and state copies around it neither count nor leave the GPU idle.
+    """
+    sim, cuda = task.sim, task.sim.device.type == "cuda"
+    runs = max(1, steps // chunk)
+    events, elapsed = [], 0.0
+    for _ in range(runs):
+        for _ in range(between):
+            advance()
+        saved = sim.save_state()
+        if cuda:
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+        else:
+            t0 = time.perf_counter()
+        for _ in range(chunk):
+            sim.simulate()
+        if cuda:
+            end.record()
+            events.append((start, end))
+        else:
+            elapsed += time.perf_counter() - t0
+        sim.load_state(saved)
+    if cuda:
+        torch.cuda.synchronize()
+        elapsed = sum(start.elapsed_time(end) for start, end in events) / 1000.0
+    return task.num_envs * runs * chunk / elapsed
+
+
 def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_iterations: int,
             overrides: list[str]) -> dict:
     cfg = compose_config([f"task={task_name}", f"num_envs={num_envs}", f"sim_device={sim_device}",
@@ -45,16 +80,18 @@ def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_it
     task = build_task(cfg)
     dev = task.sim_device
     env = RslRlVecEnv(task)  # resets every env
+    # Actions drawn beforehand: (b) times VecTask.step, not the random number generator.
+    actions = [2.0 * torch.rand(task.num_envs, task.num_actions, device=dev) - 1.0 for _ in range(16)]
+    count = iter(range(1 << 62))
 
     def random_step() -> None:
-        task.step(2.0 * torch.rand(task.num_envs, task.num_actions, device=dev) - 1.0)
+        task.step(actions[next(count) % len(actions)])
 
     # Warm-up: kernels compiled and graphs captured, and the worlds in a typical mid-episode state.
     for _ in range(50):
         random_step()
     vectask = _rate(random_step, steps, task.num_envs, dev)
-    task.sim.simulate()
-    physics = _rate(task.sim.simulate, steps, task.num_envs, dev)
+    physics = _physics_rate(task, random_step, steps)
 
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
@@ -74,6 +111,7 @@ def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_it
         "vectask_env_steps_per_s": vectask,
         "train_env_steps_per_s": train,
         "ratio_vectask_over_physics": vectask / physics,
+        "step_execution": task.step_execution,
         "device": device_description(dev),
         "versions": package_versions(),
         "date": time.strftime("%Y-%m-%d"),

@@ -102,6 +102,12 @@ class Simulator:
         self.xfrc_applied = wp.to_torch(d.xfrc_applied)
         self.overflow = wp.to_torch(d.overflow)
         self._qpos0 = wp.to_torch(self.model.qpos0)
+        # What one physics step hands to the next; everything else (poses, contacts, sensors) is recomputed.
+        self._carried_state = {
+            "qpos": self.qpos, "qvel": self.qvel, "ctrl": self.ctrl, "act": wp.to_torch(d.act),
+            "qacc_warmstart": wp.to_torch(d.qacc_warmstart), "time": wp.to_torch(d.time),
+            "xfrc_applied": self.xfrc_applied, "qfrc_applied": wp.to_torch(d.qfrc_applied),
+        }
         self._zeroed_on_reset = [
             self.qvel, self.ctrl, self.xfrc_applied, self.sensordata, self.overflow, wp.to_torch(d.time),
             wp.to_torch(d.act), wp.to_torch(d.qacc_warmstart), wp.to_torch(d.qfrc_applied),
@@ -204,6 +210,15 @@ class Simulator:
         self.qpos.copy_(torch.where(rows, self._qpos0, self.qpos))
         for view in self._zeroed_on_reset:
             view.masked_fill_(mask.view((-1,) + (1,) * (view.dim() - 1)), 0)
+
+    def save_state(self) -> dict[str, torch.Tensor]:
+        """A copy of every world's carried state (positions, velocities, controls, forces, solver warm start)."""
+        return {name: view.clone() for name, view in self._carried_state.items()}
+
+    def load_state(self, state: dict[str, torch.Tensor]) -> None:
+        """Put back a ``save_state`` copy in place; the next physics step continues from it."""
+        for name, view in self._carried_state.items():
+            view.copy_(state[name])
 
     def reset_nonfinite(self) -> torch.Tensor:
         """Reset worlds whose qpos or qvel holds NaN/inf (see ``reset_worlds``); returns their mask."""
