@@ -1,6 +1,7 @@
-"""On a CUDA GPU: the captured step (sim.captureStep=True) computes what the eager step computes.
+"""On a CUDA GPU: the step as shipped (compiled and captured, sim.compileStep / sim.captureStep) computes what the
+plain eager step computes.
 
-Builds the task twice (captured and eager step), puts both in the same deterministic state (default pose, no
+Builds the task twice (shipped and eager step), puts both in the same deterministic state (default pose, no
 noise, pushes or randomisation, same commands), drives both with the same actions and compares rewards and resets
 step by step (observations are reported: they drift apart because GPU contact physics is not bit-deterministic).
 Prints one JSON line; exits 1 on a mismatch.
@@ -38,7 +39,7 @@ def main() -> None:
     base = [f"task={args.task}", f"num_envs={args.num_envs}", "sim_device=cuda:0", "rl_device=cuda:0",
             "headless=True", *(DETERMINISTIC if args.task != "Cartpole" else [])]
     graphed = build_task(compose_config([*base, "+task.sim.captureStep=True"]))
-    eager = build_task(compose_config([*base, "+task.sim.captureStep=False"]))
+    eager = build_task(compose_config([*base, "+task.sim.captureStep=False", "+task.sim.compileStep=False"]))
     graphed.reset()
     eager.reset()
     if hasattr(graphed, "commands"):
@@ -58,7 +59,8 @@ def main() -> None:
     # (reported); rewards and resets are what must agree.
     ok = graphed._step_graphs is not None and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0
     print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps,
-                      "graph_captured": graphed._step_graphs is not None, **worst, "ok": ok}), flush=True)
+                      "graph_captured": graphed._step_graphs is not None,
+                      "step_execution": [graphed.step_execution, eager.step_execution], **worst, "ok": ok}), flush=True)
     sys.exit(0 if ok else 1)
 
 

@@ -8,12 +8,16 @@ A task subclasses VecTask and writes, in torch on ``self.device``:
   * ``compute_observations()`` -- fill ``obs_buf`` (and ``states_buf`` when numStates > 0)
 
 Resets are selected by masks, not index lists, so that a step never waits on the GPU (``nonzero()`` would).
+On CUDA the post-physics work is compiled with torch.compile (``sim.compileStep``) and, with the pre-physics
+work, captured as CUDA graphs (``sim.captureStep``): the hooks must stay device-only tensor code.
 ``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
 """
 
 from __future__ import annotations
 
 import math
+import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -171,6 +175,15 @@ class VecTask:
             bool(self.cfg.get("sim", {}).get("captureStep", True))
             and self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == self.device
         )
+        self._after_physics_step = self._after_physics
+        self._step_compiled = self._compile_step_wanted()
+        if self._step_compiled:
+            # One compiled graph fuses the post-physics step's few hundred small kernels into a few dozen; on a
+            # GPU that work, not the launches, was what a step cost beyond the physics. Random draws stay
+            # torch's own (fallback_random), so a seed gives the numbers the eager step gives.
+            self._after_physics_step = torch.compile(
+                self._after_physics, dynamic=False, options={"fallback_random": True}
+            )
 
     def set_viewer(self) -> None:
         """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
@@ -238,7 +251,15 @@ class VecTask:
         else:
             self._before_physics(actions)
             self.sim.simulate()
-            self._after_physics()
+            if self._step_compiled and self.control_steps == 0:
+                started = time.perf_counter()
+                self._after_physics_step()
+                # The first call compiles (about 15 s on a GPU host with cold caches, 2 s warm): say where the
+                # time of a run's first iteration went.
+                print(f"[isaacgymenvs_mw] compiled {type(self).__name__}'s post-physics step (sim.compileStep) in "
+                      f"{time.perf_counter() - started:.1f} s", flush=True)
+            else:
+                self._after_physics_step()
         self.control_steps += 1
 
         self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
@@ -281,6 +302,35 @@ class VecTask:
         if self.num_states > 0:
             torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs, out=self._states_out)
 
+    @property
+    def step_execution(self) -> str:
+        """How the post-physics step runs: "eager", "compiled", "captured" or "compiled+captured"."""
+        parts = [name for name, on in (("compiled", self._step_compiled),
+                                       ("captured", self._step_graphs_wanted)) if on]
+        return "+".join(parts) or "eager"
+
+    def _compile_step_wanted(self) -> bool:
+        """``sim.compileStep``: True / False, or "auto" (the default): compiled where the step is captured (CUDA)."""
+        value = self.cfg.get("sim", {}).get("compileStep", "auto")
+        if value not in (True, False, "auto"):
+            raise ValueError(f"sim.compileStep={value!r} is invalid: give True, False or auto")
+        if value != "auto":
+            return bool(value)
+        if not self._step_graphs_wanted:
+            return False
+        try:
+            from torch.utils._triton import has_triton  # torch's own probe for a usable Triton
+        except ImportError:  # a torch without that probe: compiling would not find Triton either
+            def has_triton() -> bool:
+                return False
+
+        if not has_triton():
+            warnings.warn("sim.compileStep=auto: Triton is not installed, so the post-physics step runs uncompiled "
+                          "(slower on GPU); `pip install triton` or set +task.sim.compileStep=False to silence this",
+                          RuntimeWarning, stacklevel=2)
+            return False
+        return True
+
     def _use_step_graphs(self) -> bool:
         """Step graphs: CUDA only, learner on the same GPU, after a few eager steps have compiled and warmed up."""
         return self._step_graphs_wanted and self.control_steps >= self._step_graph_warmup
@@ -296,7 +346,7 @@ class VecTask:
             with torch.cuda.graph(before):
                 self._before_physics(self._graph_actions)
             with torch.cuda.graph(after, pool=before.pool()):
-                self._after_physics()
+                self._after_physics_step()
         except Exception as err:
             raise RuntimeError(
                 f"sim.captureStep: {type(self).__name__}'s step could not be captured as CUDA graphs ({err}). "
