@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# On a GPU machine: time-to-policy for one legged task with the shipped defaults, with a cold and a warm Warp
-# kernel cache, each followed by test mode on 1024 envs; then throughput at 4096 and 8192 envs and the no-sync check.
+# On a GPU machine: time-to-policy for one legged task with the shipped defaults, with cold and warm kernel caches
+# (Warp's, and the compiled step's Inductor/Triton caches), each followed by test mode on 1024 envs; then throughput at 4096 and 8192 envs and the no-sync check.
 # Usage: bash benchmarks/gpu_train_legged.sh TASK OUTDIR
 set -uo pipefail
 task=$1; out=$2
 mkdir -p "$out"
 for cache in cold warm; do
-  [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp"
+  [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp" "/tmp/torchinductor_$(whoami)" "${HOME}/.triton/cache"
   t0=$(date +%s.%N)
   python3 train.py task="$task" headless=True runs_dir="$out/runs_$cache" > "$out/$task.$cache.log" 2>&1
   rc=$?

@@ -1,0 +1,67 @@
+"""Where the GPU time of one VecTask.step goes beyond the physics: a kernel table from torch's profiler.
+
+The step runs uncaptured (captureStep off) so that each kernel shows up on its own, compiled as it ships on a GPU
+(``--compile False`` for the plain eager step). Kernels that the bare physics (``sim.simulate``) also launches count as
+physics; the others are the framework's (actions, rewards, resets, observations). Prints those sorted by GPU time
+per step, then one JSON summary.
+
+  python benchmarks/profile_step.py --task Go1 --num_envs 4096 [--compile False]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.utils.config import compose_config
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default="Go1")
+    parser.add_argument("--num_envs", type=int, default=4096)
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--rows", type=int, default=25)
+    parser.add_argument("--compile", choices=["True", "False"], default="True", help="sim.compileStep")
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides")
+    args = parser.parse_args()
+    cfg = compose_config([f"task={args.task}", f"num_envs={args.num_envs}", "sim_device=cuda:0", "rl_device=cuda:0",
+                          "headless=True", "+task.sim.captureStep=False", f"+task.sim.compileStep={args.compile}",
+                          *args.overrides])
+    task = build_task(cfg)
+    task.reset()
+    actions = [2.0 * torch.rand(task.num_envs, task.num_actions, device=task.device) - 1.0 for _ in range(4)]
+    for i in range(30):
+        task.step(actions[i % 4])
+    torch.cuda.synchronize()
+    step_kernels = _kernels(lambda: task.step(actions[0]), args.steps)
+    physics_kernels = _kernels(task.sim.simulate, args.steps)
+    # A kernel the bare physics also launches (Warp's, and the memsets inside its graph) counts as physics.
+    framework = {k: v for k, v in step_kernels.items() if k not in physics_kernels}
+    for name, (us, count) in sorted(framework.items(), key=lambda kv: -kv[1][0])[: args.rows]:
+        print(f"{us:9.1f} us/step {count:5.1f}x  {name[:110]}")
+    print(json.dumps({
+        "task": args.task, "num_envs": args.num_envs, "step_execution": task.step_execution,
+        "step_gpu_us": sum(us for us, _ in step_kernels.values()),
+        "physics_gpu_us": sum(us for us, _ in physics_kernels.values()),
+        "framework_gpu_us": sum(us for us, _ in framework.values()),
+        "framework_kernels": sum(count for _, count in framework.values()),
+    }), flush=True)
+
+
+def _kernels(fn, reps: int) -> dict[str, tuple[float, float]]:
+    """GPU kernels that ``fn`` launches: name -> (microseconds per call, launches per call)."""
+    with profile(activities=[ProfilerActivity.CUDA], acc_events=True) as prof:
+        for _ in range(reps):
+            fn()
+        torch.cuda.synchronize()
+    return {e.key: (e.device_time_total / reps, e.count / reps)
+            for e in prof.key_averages() if e.device_time_total > 0}
+
+
+if __name__ == "__main__":
+    main()
