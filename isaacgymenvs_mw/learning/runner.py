@@ -89,6 +89,10 @@ class Runner(OnPolicyRunner):
                         obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                         self.alg.process_env_step(obs, rewards, dones, extras)
                     self.alg.compute_returns(obs)
+                if torch.device(self.device).type == "cuda":
+                    # The rollout is queued ahead of the GPU; without waiting here its tail would be timed as
+                    # "learn". The update's first host read waits for it anyway, so this costs nothing.
+                    torch.cuda.synchronize(self.device)
                 t1 = time.perf_counter()
                 losses = self.alg.update()
                 t2 = time.perf_counter()
