@@ -13,6 +13,7 @@ The ratio (b)/(a) is the framework's efficiency. Prints one JSON object.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 
@@ -82,7 +83,7 @@ def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_it
     env = RslRlVecEnv(task)  # resets every env
     # Actions drawn beforehand: (b) times VecTask.step, not the random number generator.
     actions = [2.0 * torch.rand(task.num_envs, task.num_actions, device=dev) - 1.0 for _ in range(16)]
-    count = iter(range(1 << 62))
+    count = itertools.count()
 
     def random_step() -> None:
         task.step(actions[next(count) % len(actions)])

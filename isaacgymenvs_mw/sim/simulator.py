@@ -108,10 +108,9 @@ class Simulator:
             "qacc_warmstart": wp.to_torch(d.qacc_warmstart), "time": wp.to_torch(d.time),
             "xfrc_applied": self.xfrc_applied, "qfrc_applied": wp.to_torch(d.qfrc_applied),
         }
-        self._zeroed_on_reset = [
-            self.qvel, self.ctrl, self.xfrc_applied, self.sensordata, self.overflow, wp.to_torch(d.time),
-            wp.to_torch(d.act), wp.to_torch(d.qacc_warmstart), wp.to_torch(d.qfrc_applied),
-        ]
+        # A reset zeroes all carried state but the positions (set to qpos0), and the sensors and overflow bits.
+        self._zeroed_on_reset = [view for name, view in self._carried_state.items() if name != "qpos"]
+        self._zeroed_on_reset += [self.sensordata, self.overflow]
 
         self.floating_base = m.njnt > 0 and int(m.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
         q0, v0 = (7, 6) if self.floating_base else (0, 0)
