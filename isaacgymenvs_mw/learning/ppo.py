@@ -1,0 +1,179 @@
+"""PPO whose update never waits on the GPU, for rsl-rl-lib's OnPolicyRunner (`algorithm.class_name` in the train YAML).
+
+rsl-rl-lib's ``PPO.update`` reads the GPU from the host several times per mini-batch: the adaptive learning-rate rule
+compares the KL divergence on the host, multi-GPU runs broadcast the new rate and read it back, and every loss is
+summed with ``.item()``. Each read stalls the Python thread until the GPU has drained its queue, so the next
+mini-batch's kernels are launched into an idle GPU; with several GPUs, every stall also lines the ranks up with each
+other. Here the learning rate lives in a device tensor that Adam reads directly, the KL divergence travels in the
+same all-reduce as the gradients, and losses are summed on the device and read once per update. The rule and the
+arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/test_ppo.py checks this against rsl-rl-lib).
+"""
+
+from __future__ import annotations
+
+from itertools import chain
+
+import torch
+from rsl_rl.algorithms import PPO
+
+LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
+
+
+class SyncFreePPO(PPO):
+    """rsl-rl-lib's PPO with a host-sync-free update (the rollout side is inherited unchanged).
+
+    Supports what the shipped tasks use: feed-forward or recurrent actor/critic, Adam or AdamW, ``adaptive`` or
+    ``fixed`` schedule, one or several GPUs. Random network distillation and symmetry augmentation are rejected with a
+    pointer to rsl-rl-lib's own ``PPO``, which supports them.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        unsupported = [key for key, used in (("rnd_cfg", self.rnd), ("symmetry_cfg", self.symmetry)) if used]
+        if unsupported:
+            raise ValueError(
+                f"train.algorithm.{unsupported[0]} is not supported by SyncFreePPO; "
+                "set train.algorithm.class_name=PPO to use rsl-rl-lib's PPO, which supports it"
+            )
+        if type(self.optimizer) not in (torch.optim.Adam, torch.optim.AdamW):
+            raise ValueError(
+                f"train.algorithm.optimizer={type(self.optimizer).__name__.lower()} is not supported by SyncFreePPO "
+                "(valid: adam, adamw); set train.algorithm.class_name=PPO to use rsl-rl-lib's PPO with it"
+            )
+        self._params = [p for p in chain(self._raw_actor.parameters(), self._raw_critic.parameters())
+                        if p.requires_grad]
+        dtypes = {p.dtype for p in self._params}
+        if len(dtypes) != 1:
+            raise ValueError(f"SyncFreePPO needs actor and critic parameters of one dtype, got "
+                             f"{sorted(map(str, dtypes))}; set train.algorithm.class_name=PPO to use rsl-rl-lib's PPO")
+        # All gradients are views into one flat buffer whose last element carries the mini-batch's KL divergence,
+        # so a multi-GPU step needs a single all-reduce and no copies.
+        sizes = [p.numel() for p in self._params]
+        self._flat = torch.zeros(sum(sizes) + 1, dtype=dtypes.pop(), device=self.device)
+        self._grad_views = [v.view_as(p) for v, p in zip(self._flat[:-1].split(sizes), self._params)]
+        self._install_device_learning_rate()
+
+    # ------------------------------------------------------------------ learning rate on the device
+
+    def _install_device_learning_rate(self) -> None:
+        """Put the optimizer's current rate into device tensors that Adam reads at each step."""
+        rate = float(self.optimizer.param_groups[0]["lr"])
+        self.learning_rate = rate
+        # The rule runs in float64 like rsl-rl-lib's Python floats; Adam reads the float32 copy.
+        self._lr64 = torch.tensor(rate, dtype=torch.float64, device=self.device)
+        self._lr = torch.tensor(rate, dtype=torch.float32, device=self.device)
+        on_cuda = torch.device(self.device).type == "cuda"
+        # Fused Adam takes a device-tensor rate without reading it; on the CPU the single-tensor Adam does.
+        flags = {"fused": on_cuda, "foreach": False, "capturable": False}
+        for group in self.optimizer.param_groups:
+            group["lr"] = self._lr
+            group.update(flags)
+        for param, state in self.optimizer.state.items():
+            if "step" in state:
+                state["step"] = state["step"].to(device=param.device if on_cuda else "cpu", dtype=torch.float32)
+
+    def _adapt_learning_rate(self, kl_mean: torch.Tensor) -> None:
+        too_far = kl_mean > self.desired_kl * 2.0
+        too_close = (kl_mean < self.desired_kl / 2.0) & (kl_mean > 0.0)
+        lowered = torch.clamp(self._lr64 / LR_FACTOR, min=LR_MIN)
+        raised = torch.clamp(self._lr64 * LR_FACTOR, max=LR_MAX)
+        self._lr64.copy_(torch.where(too_far, lowered, torch.where(too_close, raised, self._lr64)))
+        self._lr.copy_(self._lr64)
+
+    # ------------------------------------------------------------------ update
+
+    def update(self) -> dict[str, float]:
+        """PPO epochs over the stored rollout; returns the mean losses. Reads the GPU once, at the end."""
+        loss_sums = self.run_mini_batches()
+        observations = self.storage.observations.flatten(0, 1)
+        self._raw_actor.update_normalization(observations)  # type: ignore[operator]
+        self._raw_critic.update_normalization(observations)  # type: ignore[operator]
+        num_updates = self.num_learning_epochs * self.num_mini_batches
+        value, surrogate, entropy, rate = torch.cat([(loss_sums / num_updates).double(), self._lr64.view(1)]).tolist()
+        self.learning_rate = rate
+        self.storage.clear()
+        return {"value": value, "surrogate": surrogate, "entropy": entropy}
+
+    def run_mini_batches(self) -> torch.Tensor:
+        """All optimisation steps of one update, queued without a host read.
+
+        Returns the device tensor of summed [value loss, surrogate loss, entropy] over the mini-batches.
+        """
+        recurrent = self.actor.is_recurrent or self.critic.is_recurrent
+        batches = (self.storage.recurrent_mini_batch_generator if recurrent else self.storage.mini_batch_generator)(
+            self.num_mini_batches, self.num_learning_epochs)
+        adaptive = self.desired_kl is not None and self.schedule == "adaptive"
+        loss_sums = torch.zeros(3, device=self.device)
+        for batch in batches:
+            if self.normalize_advantage_per_mini_batch:
+                with torch.no_grad():
+                    batch.advantages = (batch.advantages - batch.advantages.mean()) / (batch.advantages.std() + 1e-8)
+            with torch.autocast(device_type=torch.device(self.device).type, enabled=self.use_mixed_precision,
+                                dtype=torch.bfloat16):
+                self.actor(batch.observations, masks=batch.masks, hidden_state=batch.hidden_states[0],
+                           stochastic_output=True)
+                log_prob = self.actor.get_output_log_prob(batch.actions)  # type: ignore[arg-type]
+                values = self.critic(batch.observations, masks=batch.masks, hidden_state=batch.hidden_states[1])
+                entropy = self.actor.output_entropy.mean()
+                kl_mean = None
+                if adaptive:
+                    with torch.no_grad():
+                        kl_mean = self.actor.get_kl_divergence(  # type: ignore[arg-type]
+                            batch.old_distribution_params, self.actor.output_distribution_params).mean()
+                surrogate_loss = self._surrogate_loss(log_prob, batch)
+                value_loss = self._value_loss(values, batch)
+                loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
+
+            self._flat.zero_()
+            for param, view in zip(self._params, self._grad_views):
+                param.grad = view  # re-attached each time: anything that set grads to None would detach them
+            loss.backward()
+            if self.is_multi_gpu:
+                kl_mean = self._all_reduce_gradients(kl_mean)
+            if kl_mean is not None:
+                self._adapt_learning_rate(kl_mean)
+            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
+            torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
+            self.optimizer.step()
+            loss_sums += torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy.detach()]).float()
+        return loss_sums
+
+    def _surrogate_loss(self, log_prob: torch.Tensor, batch) -> torch.Tensor:
+        ratio = torch.exp(log_prob - torch.squeeze(batch.old_actions_log_prob))
+        advantages = torch.squeeze(batch.advantages)
+        clipped = torch.clamp(ratio, 1.0 - self.clip_param, 1.0 + self.clip_param)
+        return torch.max(-advantages * ratio, -advantages * clipped).mean()
+
+    def _value_loss(self, values: torch.Tensor, batch) -> torch.Tensor:
+        if not self.use_clipped_value_loss:
+            return (batch.returns - values).pow(2).mean()
+        clipped = batch.values + (values - batch.values).clamp(-self.clip_param, self.clip_param)
+        return torch.max((values - batch.returns).pow(2), (clipped - batch.returns).pow(2)).mean()
+
+    def _all_reduce_gradients(self, kl_mean: torch.Tensor | None) -> torch.Tensor | None:
+        """Average gradients (and the KL divergence) over the GPUs in ``grad_reduce_bucket_mb`` pieces.
+
+        NCCL leaves identical results on every rank, so each rank applies the learning-rate rule to the same KL and
+        arrives at rank 0's rate without the broadcast rsl-rl-lib needs.
+        """
+        if kl_mean is not None:
+            self._flat[-1] = kl_mean
+        bucket = max(1, int(self.grad_reduce_bucket_mb * 2**20) // self._flat.element_size())
+        for piece in self._flat.split(bucket):
+            torch.distributed.all_reduce(piece, op=torch.distributed.ReduceOp.SUM)
+        self._flat /= self.gpu_world_size
+        return None if kl_mean is None else self._flat[-1]
+
+    # ------------------------------------------------------------------ checkpoints
+
+    def save(self) -> dict:
+        """rsl-rl-lib's checkpoint, with the learning rate stored as a number so rsl-rl-lib's PPO can load it too."""
+        saved = super().save()
+        for group in saved["optimizer_state_dict"]["param_groups"]:
+            group["lr"] = float(group["lr"])
+        return saved
+
+    def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
+        resume_iteration = super().load(loaded_dict, load_cfg, strict)
+        self._install_device_learning_rate()
+        return resume_iteration

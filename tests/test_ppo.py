@@ -1,0 +1,184 @@
+"""SyncFreePPO against rsl-rl-lib's PPO: same data, same seeds, same result, on one process and on two.
+
+The reference is rsl-rl-lib's own ``PPO.update`` (host-side learning-rate rule, ``.item()`` losses, broadcast of the
+rate between ranks). Both algorithms start from the same weights and draw the same random numbers, so after several
+updates their parameters, learning rates and losses must agree to float32 rounding.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+import torch.distributed as dist
+import torch.multiprocessing as mp
+from rsl_rl.algorithms import PPO
+from tensordict import TensorDict
+
+from isaacgymenvs_mw.learning.ppo import SyncFreePPO
+
+NUM_ENVS, NUM_STEPS, OBS, ACTIONS = 32, 8, 6, 3
+START_LR = 1e-3
+SYNC_FREE = "isaacgymenvs_mw.learning.ppo:SyncFreePPO"
+
+
+class FakeEnv:
+    num_envs, num_actions = NUM_ENVS, ACTIONS
+
+
+def train_cfg(algorithm_class: str, **algorithm) -> dict:
+    return {
+        "num_steps_per_env": NUM_STEPS, "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
+        "multi_gpu": None,
+        "algorithm": {"class_name": algorithm_class, "learning_rate": START_LR, "num_learning_epochs": 3,
+                      "num_mini_batches": 2, "entropy_coef": 0.01, **algorithm},
+        "actor": {"class_name": "MLPModel", "hidden_dims": [16, 16], "activation": "elu", "obs_normalization": True,
+                  "distribution_cfg": {"class_name": "isaacgymenvs_mw.learning.distributions:GaussianDistribution",
+                                       "init_std": 1.0, "std_type": "scalar"}},
+        "critic": {"class_name": "MLPModel", "hidden_dims": [16, 16], "activation": "elu", "obs_normalization": True},
+    }
+
+
+# The CUDA run (fused Adam reading the device-tensor rate) exists where a GPU does; CI machines have none.
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+def observations(generator: torch.Generator, device: str = "cpu") -> TensorDict:
+    return TensorDict({"policy": torch.randn(NUM_ENVS, OBS, generator=generator).to(device)}, batch_size=[NUM_ENVS],
+                      device=device)
+
+
+def build(algorithm_class: str, multi_gpu: dict | None = None, device: str = "cpu", **algorithm):
+    torch.manual_seed(0)  # same initial weights for both algorithms
+    cfg = train_cfg(algorithm_class, **algorithm)
+    cfg["multi_gpu"] = multi_gpu
+    obs = observations(torch.Generator().manual_seed(1), device)
+    return PPO.construct_algorithm(obs, FakeEnv(), cfg, device)  # builds the class that cfg names
+
+
+def train(alg, updates: int, data_seed: int) -> list[dict]:
+    """`updates` rounds of rollout + update on synthetic data; a reward that the policy's actions shape makes the
+    losses move, and some dones exercise the bootstrapping."""
+    data = torch.Generator().manual_seed(data_seed)
+    torch.manual_seed(1234)  # action sampling and mini-batch shuffling (seeds the CUDA generator too)
+    device = alg.device
+    history = []
+    for _ in range(updates):
+        obs = observations(data, device)
+        for _ in range(NUM_STEPS):
+            with torch.inference_mode():
+                actions = alg.act(obs)
+                next_obs = observations(data, device)
+                rewards = -(actions - obs["policy"][:, :ACTIONS]).pow(2).sum(dim=1)
+                dones = (torch.rand(NUM_ENVS, generator=data) < 0.1).float().to(device)
+                extras = {"time_outs": (torch.rand(NUM_ENVS, generator=data) < 0.5).float().to(device) * dones}
+                alg.process_env_step(next_obs, rewards, dones, extras)
+            obs = next_obs
+        with torch.inference_mode():
+            alg.compute_returns(obs)
+        losses = alg.update()
+        history.append({**losses, "lr": alg.learning_rate})
+    return history
+
+
+def parameters(alg) -> list[torch.Tensor]:
+    return [p.detach().cpu().clone() for p in (*alg.actor.parameters(), *alg.critic.parameters())]
+
+
+def assert_same_training(reference, candidate, ref_history, cand_history) -> None:
+    for ref, cand in zip(ref_history, cand_history):
+        assert cand["lr"] == pytest.approx(ref["lr"], rel=1e-12)
+        for key in ("value", "surrogate", "entropy"):
+            assert cand[key] == pytest.approx(ref[key], rel=1e-4, abs=1e-6), key
+    for ref, cand in zip(parameters(reference), parameters(candidate), strict=True):
+        torch.testing.assert_close(cand, ref, rtol=1e-4, atol=1e-6)
+    for name in ("actor", "critic"):  # observation normalisers
+        ref_norm, cand_norm = getattr(reference, name).obs_normalizer, getattr(candidate, name).obs_normalizer
+        torch.testing.assert_close(cand_norm._mean, ref_norm._mean)
+        torch.testing.assert_close(cand_norm._var, ref_norm._var)
+
+
+@pytest.mark.parametrize(("schedule", "desired_kl", "lr_moves"), [
+    ("adaptive", 1e-7, "down"),   # every mini-batch overshoots: the rate falls to its floor
+    ("adaptive", 0.01, None),
+    ("adaptive", 10.0, "up"),     # every mini-batch undershoots: the rate rises to its ceiling
+    ("fixed", 0.01, "stays"),
+])
+@pytest.mark.parametrize("device", DEVICES)
+def test_update_matches_rsl_rl_ppo(schedule, desired_kl, lr_moves, device):
+    ref = build("PPO", schedule=schedule, desired_kl=desired_kl, device=device)
+    cand = build(SYNC_FREE, schedule=schedule, desired_kl=desired_kl, device=device)
+    assert isinstance(cand, SyncFreePPO) and type(ref) is PPO
+    ref_history, cand_history = train(ref, 4, data_seed=7), train(cand, 4, data_seed=7)
+    assert_same_training(ref, cand, ref_history, cand_history)
+    final = cand_history[-1]["lr"]
+    if lr_moves == "down":
+        assert final < START_LR
+    elif lr_moves == "up":
+        assert final > START_LR
+    elif lr_moves == "stays":
+        assert final == START_LR
+
+
+def test_checkpoint_round_trip_and_rsl_rl_can_load_it():
+    trained = build(SYNC_FREE, desired_kl=1e-7)
+    train(trained, 2, data_seed=3)
+    saved = copy.deepcopy(trained.save())
+    assert all(type(g["lr"]) is float for g in saved["optimizer_state_dict"]["param_groups"])
+    assert saved["optimizer_state_dict"]["param_groups"][0]["lr"] == pytest.approx(trained.learning_rate, rel=1e-6)
+
+    resumed, plain = build(SYNC_FREE), build("PPO")
+    resumed.load(copy.deepcopy(saved), None, strict=True)
+    plain.load(copy.deepcopy(saved), None, strict=True)
+    assert resumed.learning_rate == pytest.approx(trained.learning_rate, rel=1e-6)
+    # Training on from the checkpoint continues identically in both implementations.
+    assert_same_training(plain, resumed, train(plain, 2, data_seed=5), train(resumed, 2, data_seed=5))
+
+
+@pytest.mark.parametrize(("key", "value", "message"), [
+    ("optimizer", "sgd", "train.algorithm.optimizer=sgd is not supported by SyncFreePPO (valid: adam, adamw)"),
+    ("symmetry_cfg", {"use_data_augmentation": True, "data_augmentation_func": "torch:clone"},
+     "train.algorithm.symmetry_cfg is not supported"),
+])
+def test_unsupported_settings_are_rejected_with_the_key(key, value, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        build(SYNC_FREE, **{key: value})
+
+
+def _two_rank_worker(rank: int, world: int, init_file: str, results) -> None:
+    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    try:
+        torch.set_num_threads(1)
+        multi = {"global_rank": rank, "local_rank": rank, "world_size": world}
+        out = {}
+        for name in ("PPO", SYNC_FREE):
+            alg = build(name, multi_gpu=multi, desired_kl=0.002)
+            alg.broadcast_parameters()
+            history = train(alg, 3, data_seed=100 + rank)  # each rank its own data, as each GPU its own worlds
+            out[name] = (history, parameters(alg))
+        results[rank] = out
+    finally:
+        dist.destroy_process_group()
+
+
+def test_two_process_update_matches_rsl_rl_distributed_ppo(tmp_path):
+    """Gradient and KL averaging over two ranks (gloo on the CPU stands in for NCCL)."""
+    world = 2
+    with mp.Manager() as manager:
+        results = manager.dict()
+        mp.spawn(_two_rank_worker, args=(world, str(tmp_path / "rendezvous"), results), nprocs=world)
+        results = dict(results)
+    for rank in range(world):
+        ref_history, ref_params = results[rank]["PPO"]
+        cand_history, cand_params = results[rank][SYNC_FREE]
+        for ref, cand in zip(ref_history, cand_history):
+            # rsl-rl-lib broadcasts the rate as a float32 tensor, rounding it once per mini-batch
+            assert cand["lr"] == pytest.approx(ref["lr"], rel=1e-6)
+            assert cand["lr"] != START_LR  # the rule did act
+            assert cand["value"] == pytest.approx(ref["value"], rel=1e-4, abs=1e-6)
+        for ref, cand in zip(ref_params, cand_params, strict=True):
+            torch.testing.assert_close(cand, ref, rtol=1e-4, atol=1e-6)
+    # The ranks trained on different data yet hold the same weights: gradients were averaged.
+    for p0, p1 in zip(results[0][SYNC_FREE][1], results[1][SYNC_FREE][1], strict=True):
+        torch.testing.assert_close(p0, p1, rtol=0, atol=0)
