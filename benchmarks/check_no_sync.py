@@ -1,10 +1,11 @@
 """Check on a CUDA GPU that VecTask.step and the PPO rollout loop never wait for the device.
 
 Runs, after a warm-up, `--steps` env steps (VecTask.step with random actions) and then one full rollout
-(`num_steps_per_env` steps of policy inference + env step + storage, as Runner.learn does) under
+(`num_steps_per_env` steps of policy inference + env step + storage, as Runner.learn does), the returns, and, with
+SyncFreePPO, every mini-batch step of the PPO update (forward, backward, learning-rate rule, Adam) under
 ``torch.cuda.set_sync_debug_mode("error")``, which raises on any host-device synchronisation. The periodic
-host work (overflow poll every `sim.overflowCheckInterval` steps, episode statistics once per iteration) is
-outside that window by construction. Prints one JSON line; exits 1 on a sync.
+host work (overflow poll every `sim.overflowCheckInterval` steps, episode statistics and the update's loss read
+once per iteration) is outside that window by construction. Prints one JSON line; exits 1 on a sync.
 
   python benchmarks/check_no_sync.py --task Anymal --num_envs 4096
 """
@@ -51,6 +52,10 @@ def check(task_name: str, num_envs: int, steps: int) -> dict:
                 actions = runner.alg.act(obs)
                 obs, rewards, dones, extras = env.step(actions)
                 runner.alg.process_env_step(obs, rewards, dones, extras)
+            runner.alg.compute_returns(obs)
+        if hasattr(runner.alg, "run_mini_batches"):  # SyncFreePPO: every optimisation step of the update, too
+            runner.alg.run_mini_batches()
+            result["update_mini_batches"] = runner.alg.num_learning_epochs * runner.alg.num_mini_batches
         result["ok"] = True
     except RuntimeError as err:
         result["error"] = str(err).splitlines()[0]

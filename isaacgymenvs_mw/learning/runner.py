@@ -79,9 +79,14 @@ class Runner(OnPolicyRunner):
         start_it = self.current_learning_iteration
         last_it = start_it + num_learning_iterations
         it = start_it
+        # On CUDA the host queues the update while the GPU still runs the rollout, so host clocks cannot split an
+        # iteration; events on the GPU mark where the rollout ends.
+        on_cuda = torch.device(self.device).type == "cuda"
+        rollout_end = torch.cuda.Event(enable_timing=True) if on_cuda else None
+        update_end = torch.cuda.Event(enable_timing=True) if on_cuda else None
         try:
             for it in range(start_it, last_it):
-                t0 = time.perf_counter()
+                t0 = time.perf_counter()  # the GPU is idle here: the last iteration ended with a host read
                 with torch.inference_mode():
                     for _ in range(steps):
                         actions = self.alg.act(obs)
@@ -89,15 +94,18 @@ class Runner(OnPolicyRunner):
                         obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                         self.alg.process_env_step(obs, rewards, dones, extras)
                     self.alg.compute_returns(obs)
-                if torch.device(self.device).type == "cuda":
-                    # The rollout is queued ahead of the GPU; without waiting here its tail would be timed as
-                    # "learn". The update's first host read waits for it anyway, so this costs nothing.
-                    torch.cuda.synchronize(self.device)
                 t1 = time.perf_counter()
-                losses = self.alg.update()
+                if on_cuda:
+                    rollout_end.record()
+                losses = self.alg.update()  # ends by reading its losses, so the GPU has finished
                 t2 = time.perf_counter()
+                learn_s = t2 - t1
+                if on_cuda:
+                    update_end.record()
+                    update_end.synchronize()
+                    learn_s = rollout_end.elapsed_time(update_end) / 1000.0
                 self.current_learning_iteration = it + 1
-                self._log_iteration(writer, it, last_it, t1 - t0, t2 - t1, losses)
+                self._log_iteration(writer, it, last_it, t2 - t0 - learn_s, learn_s, losses)
                 if self.is_main and self.log_dir and (it + 1) % self.cfg["save_interval"] == 0:
                     self.save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
         except BaseException:
@@ -122,7 +130,7 @@ class Runner(OnPolicyRunner):
             self.recent.append(stats)
         fps = env_steps / max(collect_s + learn_s, 1e-9)
         record = {"iteration": it + 1, "env_steps": self.total_env_steps, "time_s": self.train_time,
-                  "steps_per_s": fps, **{k: v for k, v in stats.items()}}
+                  "steps_per_s": fps, "collect_s": collect_s, "learn_s": learn_s, **{k: v for k, v in stats.items()}}
         self.history.append(record)
         self.nonfinite_resets += int(stats["nonfinite_resets"])
         if not self.is_main:
