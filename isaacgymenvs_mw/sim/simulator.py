@@ -287,9 +287,12 @@ class Simulator:
             if bits & bit and key not in keys:
                 keys.append(key)
         if keys:
+            # Only the bits that drop data: ITERATIONS/LS_ITERATIONS (solver stopped at its iteration limit) are
+            # set by every RL-sized iteration count and would read as a cause here.
+            dropped = bits & sum(_OVERFLOW_KEYS)
             warnings.warn(
                 "MuJoCo Warp dropped contacts or constraint rows (overflow bits "
-                f"{mjw.OverflowType(bits & int(mjw.OverflowType.ALL))!r}); physics in the affected worlds is wrong. "
+                f"{mjw.OverflowType(dropped)!r}); physics in the affected worlds is wrong. "
                 f"Raise {', '.join(keys)} in the task YAML.",
                 RuntimeWarning,
                 stacklevel=2,
