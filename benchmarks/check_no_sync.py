@@ -35,7 +35,9 @@ def check(task_name: str, num_envs: int, steps: int) -> dict:
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
     runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
-    runner.learn(1)  # compiles kernels, captures graphs, allocates storage: all allowed to sync
+    # Compiles kernels, captures the step graphs and (second update, SyncFreePPO on one GPU) the update graph,
+    # allocates storage: all allowed to sync.
+    runner.learn(2)
     env.stats.pop()
     # Keep the window between two periodic host checks.
     steps = min(steps, task.overflow_check_interval - 1 - task.control_steps % task.overflow_check_interval)
@@ -54,7 +56,8 @@ def check(task_name: str, num_envs: int, steps: int) -> dict:
                 runner.alg.process_env_step(obs, rewards, dones, extras)
             runner.alg.compute_returns(obs)
         if hasattr(runner.alg, "run_mini_batches"):  # SyncFreePPO: every optimisation step of the update, too
-            runner.alg.run_mini_batches()
+            runner.alg.run_mini_batches()  # with a captured update: the graph's replay
+            result["update_captured"] = runner.alg.capture_update
             result["update_mini_batches"] = runner.alg.num_learning_epochs * runner.alg.num_mini_batches
         result["ok"] = True
     except RuntimeError as err:

@@ -97,7 +97,9 @@ def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_it
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
     runner = Runner(env, train_cfg, log_dir=None, device=dev)
-    runner.learn(1)  # warm-up iteration (optimizer state, first-iteration allocations)
+    # Warm-up: optimizer state and first allocations; SyncFreePPO runs its first update eagerly and captures its
+    # update graph in the second.
+    runner.learn(2)
     _sync(dev)
     t0 = time.perf_counter()
     runner.learn(train_iterations)

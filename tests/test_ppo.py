@@ -40,8 +40,16 @@ def train_cfg(algorithm_class: str, **algorithm) -> dict:
     }
 
 
-# The CUDA run (fused Adam reading the device-tensor rate) exists where a GPU does; CI machines have none.
-DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+# The CUDA runs (fused Adam reading the device-tensor rate; the update eager, and captured as a CUDA graph) exist
+# where a GPU does; CI machines have none.
+DEVICE_MODES = [("cpu", "auto")] + ([("cuda", "auto"), ("cuda", False)] if torch.cuda.is_available() else [])
+
+
+def recurrent(cfg: dict) -> dict:
+    """The same networks with a small GRU in front (rsl-rl-lib's RNNModel)."""
+    for name in ("actor", "critic"):
+        cfg[name].update(class_name="RNNModel", rnn_type="gru", rnn_hidden_dim=8, rnn_num_layers=1)
+    return cfg
 
 
 def observations(generator: torch.Generator, device: str = "cpu") -> TensorDict:
@@ -49,9 +57,12 @@ def observations(generator: torch.Generator, device: str = "cpu") -> TensorDict:
                       device=device)
 
 
-def build(algorithm_class: str, multi_gpu: dict | None = None, device: str = "cpu", **algorithm):
+def build(algorithm_class: str, multi_gpu: dict | None = None, device: str = "cpu", rnn: bool = False,
+          **algorithm):
     torch.manual_seed(0)  # same initial weights for both algorithms
     cfg = train_cfg(algorithm_class, **algorithm)
+    if rnn:
+        cfg = recurrent(cfg)
     cfg["multi_gpu"] = multi_gpu
     obs = observations(torch.Generator().manual_seed(1), device)
     return PPO.construct_algorithm(obs, FakeEnv(), cfg, device)  # builds the class that cfg names
@@ -105,13 +116,15 @@ def assert_same_training(reference, candidate, ref_history, cand_history) -> Non
     ("adaptive", 10.0, "up"),     # every mini-batch undershoots: the rate rises to its ceiling
     ("fixed", 0.01, "stays"),
 ])
-@pytest.mark.parametrize("device", DEVICES)
-def test_update_matches_rsl_rl_ppo(schedule, desired_kl, lr_moves, device):
+@pytest.mark.parametrize(("device", "capture"), DEVICE_MODES)
+def test_update_matches_rsl_rl_ppo(schedule, desired_kl, lr_moves, device, capture):
     ref = build("PPO", schedule=schedule, desired_kl=desired_kl, device=device)
-    cand = build(SYNC_FREE, schedule=schedule, desired_kl=desired_kl, device=device)
+    cand = build(SYNC_FREE, schedule=schedule, desired_kl=desired_kl, device=device, capture_update=capture)
     assert isinstance(cand, SyncFreePPO) and type(ref) is PPO
     ref_history, cand_history = train(ref, 4, data_seed=7), train(cand, 4, data_seed=7)
     assert_same_training(ref, cand, ref_history, cand_history)
+    # on the GPU with capture on, updates 2-4 replayed a graph (the first one ran eagerly to warm up)
+    assert (cand._graph is not None) == (device == "cuda" and capture == "auto")
     final = cand_history[-1]["lr"]
     if lr_moves == "down":
         assert final < START_LR
@@ -121,14 +134,23 @@ def test_update_matches_rsl_rl_ppo(schedule, desired_kl, lr_moves, device):
         assert final == START_LR
 
 
-def test_checkpoint_round_trip_and_rsl_rl_can_load_it():
-    trained = build(SYNC_FREE, desired_kl=1e-7)
+def test_recurrent_update_matches_rsl_rl_ppo():
+    ref, cand = build("PPO", rnn=True), build(SYNC_FREE, rnn=True)
+    assert cand.actor.is_recurrent and cand.capture_update is False
+    assert_same_training(ref, cand, train(ref, 3, data_seed=9), train(cand, 3, data_seed=9))
+
+
+@pytest.mark.parametrize(("device", "capture"), DEVICE_MODES)
+def test_checkpoint_round_trip_and_rsl_rl_can_load_it(device, capture):
+    trained = build(SYNC_FREE, desired_kl=1e-7, device=device, capture_update=capture)
     train(trained, 2, data_seed=3)
     saved = copy.deepcopy(trained.save())
-    assert all(type(g["lr"]) is float for g in saved["optimizer_state_dict"]["param_groups"])
+    assert all(type(g["lr"]) is float and not g["capturable"] for g in saved["optimizer_state_dict"]["param_groups"])
     assert saved["optimizer_state_dict"]["param_groups"][0]["lr"] == pytest.approx(trained.learning_rate, rel=1e-6)
 
-    resumed, plain = build(SYNC_FREE), build("PPO")
+    # `resumed` has trained (and on the GPU captured its update) before loading: nothing of that may survive
+    resumed, plain = build(SYNC_FREE, device=device, capture_update=capture), build("PPO", device=device)
+    train(resumed, 2, data_seed=11)
     resumed.load(copy.deepcopy(saved), None, strict=True)
     plain.load(copy.deepcopy(saved), None, strict=True)
     assert resumed.learning_rate == pytest.approx(trained.learning_rate, rel=1e-6)
@@ -140,10 +162,19 @@ def test_checkpoint_round_trip_and_rsl_rl_can_load_it():
     ("optimizer", "sgd", "train.algorithm.optimizer=sgd is not supported by SyncFreePPO (valid: adam, adamw)"),
     ("symmetry_cfg", {"use_data_augmentation": True, "data_augmentation_func": "torch:clone"},
      "train.algorithm.symmetry_cfg is not supported"),
+    ("capture_update", "yes", "train.algorithm.capture_update='yes' is not valid; valid: auto, True, False"),
+    ("capture_update", True, "train.algorithm.capture_update=True needs a CUDA rl_device; use auto or False"),
 ])
 def test_unsupported_settings_are_rejected_with_the_key(key, value, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
         build(SYNC_FREE, **{key: value})
+
+
+def test_capture_is_refused_for_several_gpus_and_auto_leaves_it_off():
+    multi = {"global_rank": 0, "local_rank": 0, "world_size": 2}  # no process group is needed to construct
+    with pytest.raises(ValueError, match=r"capture_update=True needs a CUDA rl_device and multi_gpu=False"):
+        build(SYNC_FREE, multi_gpu=multi, capture_update=True)
+    assert build(SYNC_FREE, multi_gpu=multi).capture_update is False
 
 
 def _two_rank_worker(rank: int, world: int, init_file: str, results) -> None:

@@ -7,16 +7,28 @@ mini-batch's kernels are launched into an idle GPU; with several GPUs, every sta
 other. Here the learning rate lives in a device tensor that Adam reads directly, the KL divergence travels in the
 same all-reduce as the gradients, and losses are summed on the device and read once per update. The rule and the
 arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/test_ppo.py checks this against rsl-rl-lib).
+
+Without host reads the update is still thousands of small kernel launches from Python (the policy networks are
+small, so launching costs more than computing). On one GPU the whole update is therefore recorded once as a CUDA
+graph and replayed (``capture_update``), which made Go1's update 5x faster on an H100 (docs/PERFORMANCE.md).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from itertools import chain
 
 import torch
 from rsl_rl.algorithms import PPO
+from rsl_rl.storage import RolloutStorage
 
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
+EAGER_UPDATES_BEFORE_CAPTURE = 1
+
+
+def storage_samples(storage: RolloutStorage) -> int:
+    """Transitions one rollout stores: envs x steps."""
+    return storage.num_envs * storage.num_transitions_per_env
 
 
 class SyncFreePPO(PPO):
@@ -25,9 +37,13 @@ class SyncFreePPO(PPO):
     Supports what the shipped tasks use: feed-forward or recurrent actor/critic, Adam or AdamW, ``adaptive`` or
     ``fixed`` schedule, one or several GPUs. Random network distillation and symmetry augmentation are rejected with a
     pointer to rsl-rl-lib's own ``PPO``, which supports them.
+
+    ``capture_update`` (``auto``, ``True``, ``False``; train YAML ``algorithm.capture_update``): replay the update as
+    a CUDA graph. ``auto`` captures where it can: a CUDA device, one GPU, feed-forward networks, no mixed precision.
+    The first update runs eagerly (it creates Adam's state), the second captures.
     """
 
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args, capture_update: bool | str = "auto", **kwargs) -> None:
         super().__init__(*args, **kwargs)
         unsupported = [key for key, used in (("rnd_cfg", self.rnd), ("symmetry_cfg", self.symmetry)) if used]
         if unsupported:
@@ -51,7 +67,34 @@ class SyncFreePPO(PPO):
         sizes = [p.numel() for p in self._params]
         self._flat = torch.zeros(sum(sizes) + 1, dtype=dtypes.pop(), device=self.device)
         self._grad_views = [v.view_as(p) for v, p in zip(self._flat[:-1].split(sizes), self._params)]
+        # The shuffle and the advantages are copied into fixed buffers, which a captured update reads.
+        self._num_samples = self.num_mini_batches * (storage_samples(self.storage) // self.num_mini_batches)
+        self._perm = torch.empty(self._num_samples, dtype=torch.long, device=self.device)
+        self._advantages = torch.zeros_like(self.storage.advantages)
+        self.capture_update = self._resolve_capture(capture_update)
+        self._graph: torch.cuda.CUDAGraph | None = None
+        self._graph_loss_sums: torch.Tensor | None = None
+        self._eager_updates = 0
         self._install_device_learning_rate()
+
+    def _resolve_capture(self, value: bool | str) -> bool:
+        on_cuda = torch.device(self.device).type == "cuda"
+        recurrent = self.actor.is_recurrent or self.critic.is_recurrent
+        # Several GPUs: a captured update trained correctly on 2 x H200, but the ranks then hung at exit (NCCL
+        # all-reduce inside a graph); until that is solved, multi-GPU runs use the eager, still sync-free update.
+        unmet = [need for need, missing in (
+            ("a CUDA rl_device", not on_cuda), ("feed-forward actor and critic", recurrent),
+            ("use_mixed_precision=False", self.use_mixed_precision), ("multi_gpu=False", self.is_multi_gpu)) if missing]
+        if value == "auto":
+            return not unmet
+        if value is True:
+            if unmet:
+                raise ValueError(f"train.algorithm.capture_update=True needs {' and '.join(unmet)}; "
+                                 "use auto or False")
+            return True
+        if value is False:
+            return False
+        raise ValueError(f"train.algorithm.capture_update={value!r} is not valid; valid: auto, True, False")
 
     # ------------------------------------------------------------------ learning rate on the device
 
@@ -71,6 +114,8 @@ class SyncFreePPO(PPO):
         for param, state in self.optimizer.state.items():
             if "step" in state:
                 state["step"] = state["step"].to(device=param.device if on_cuda else "cpu", dtype=torch.float32)
+        # A captured update reads the old rate and optimizer state: capture again from the next update on.
+        self._graph, self._graph_loss_sums, self._eager_updates = None, None, 0
 
     def _adapt_learning_rate(self, kl_mean: torch.Tensor) -> None:
         too_far = kl_mean > self.desired_kl * 2.0
@@ -86,8 +131,13 @@ class SyncFreePPO(PPO):
         """PPO epochs over the stored rollout; returns the mean losses. Reads the GPU once, at the end."""
         loss_sums = self.run_mini_batches()
         observations = self.storage.observations.flatten(0, 1)
-        self._raw_actor.update_normalization(observations)  # type: ignore[operator]
-        self._raw_critic.update_normalization(observations)  # type: ignore[operator]
+        for model in (self._raw_actor, self._raw_critic):
+            normalizer = getattr(model, "obs_normalizer", None)
+            std = getattr(normalizer, "_std", None)
+            model.update_normalization(observations)  # type: ignore[operator]
+            if isinstance(std, torch.Tensor) and normalizer._std is not std:
+                # rsl-rl-lib replaces the std tensor; a captured update reads the one it was captured with
+                normalizer._std = std.copy_(normalizer._std)
         num_updates = self.num_learning_epochs * self.num_mini_batches
         value, surrogate, entropy, rate = torch.cat([(loss_sums / num_updates).double(), self._lr64.view(1)]).tolist()
         self.learning_rate = rate
@@ -97,11 +147,62 @@ class SyncFreePPO(PPO):
     def run_mini_batches(self) -> torch.Tensor:
         """All optimisation steps of one update, queued without a host read.
 
-        Returns the device tensor of summed [value loss, surrogate loss, entropy] over the mini-batches.
+        Returns the device tensor of summed [value loss, surrogate loss, entropy] over the mini-batches; with a
+        captured update it is the graph's output, overwritten by the next update.
         """
-        recurrent = self.actor.is_recurrent or self.critic.is_recurrent
-        batches = (self.storage.recurrent_mini_batch_generator if recurrent else self.storage.mini_batch_generator)(
-            self.num_mini_batches, self.num_learning_epochs)
+        if self.actor.is_recurrent or self.critic.is_recurrent:
+            return self._optimisation_steps(
+                self.storage.recurrent_mini_batch_generator(self.num_mini_batches, self.num_learning_epochs))
+        # rsl-rl-lib's shuffle: one permutation per update, shared by its epochs
+        torch.randperm(self._num_samples, out=self._perm)
+        self._advantages.copy_(self.storage.advantages)
+        if not self.capture_update:
+            return self._optimisation_steps(self._feedforward_batches())
+        if self._graph is None:
+            if self._eager_updates < EAGER_UPDATES_BEFORE_CAPTURE:
+                return self._warm_up_update()
+            self._capture()
+        self._graph.replay()  # type: ignore[union-attr]
+        return self._graph_loss_sums  # type: ignore[return-value]
+
+    def _warm_up_update(self) -> torch.Tensor:
+        """An eager update on a side stream, as CUDA graph capture asks: it creates Adam's state, cuBLAS workspaces
+        and autograd's stream bookkeeping before the graph records them."""
+        stream = torch.cuda.Stream(self.device)
+        stream.wait_stream(torch.cuda.current_stream(self.device))
+        with torch.cuda.stream(stream):
+            loss_sums = self._optimisation_steps(self._feedforward_batches())
+        torch.cuda.current_stream(self.device).wait_stream(stream)
+        self._eager_updates += 1
+        return loss_sums
+
+    def _capture(self) -> None:
+        """Record every mini-batch step of an update (forward, backward, all-reduce, rate, clip, Adam) as one CUDA
+        graph over fixed buffers, so that an update is one launch instead of thousands of kernel launches."""
+        for group in self.optimizer.param_groups:
+            group["capturable"] = True  # Adam keeps its step count on the device already (fused)
+        graph = torch.cuda.CUDAGraph()
+        with torch.cuda.graph(graph):
+            self._graph_loss_sums = self._optimisation_steps(self._feedforward_batches())
+        self._graph = graph
+
+    def _feedforward_batches(self) -> Iterator[RolloutStorage.Batch]:
+        """The mini-batches of rsl-rl-lib's feed-forward generator, read through the fixed shuffle and advantages."""
+        st = self.storage
+        size = self._num_samples // self.num_mini_batches
+        observations = st.observations.flatten(0, 1)
+        actions, values, returns = st.actions.flatten(0, 1), st.values.flatten(0, 1), st.returns.flatten(0, 1)
+        old_log_prob, advantages = st.actions_log_prob.flatten(0, 1), self._advantages.flatten(0, 1)
+        old_params = tuple(p.flatten(0, 1) for p in st.distribution_params)  # type: ignore[union-attr]
+        for _ in range(self.num_learning_epochs):
+            for i in range(self.num_mini_batches):
+                idx = self._perm[i * size:(i + 1) * size]
+                yield RolloutStorage.Batch(
+                    observations=observations[idx], actions=actions[idx], values=values[idx],  # type: ignore[arg-type]
+                    advantages=advantages[idx], returns=returns[idx], old_actions_log_prob=old_log_prob[idx],
+                    old_distribution_params=tuple(p[idx] for p in old_params))
+
+    def _optimisation_steps(self, batches: Iterable[RolloutStorage.Batch]) -> torch.Tensor:
         adaptive = self.desired_kl is not None and self.schedule == "adaptive"
         loss_sums = torch.zeros(3, device=self.device)
         for batch in batches:
@@ -171,6 +272,7 @@ class SyncFreePPO(PPO):
         saved = super().save()
         for group in saved["optimizer_state_dict"]["param_groups"]:
             group["lr"] = float(group["lr"])
+            group["capturable"] = False  # a graph-capture setting of this process, not of the checkpoint
         return saved
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
