@@ -177,8 +177,8 @@ class SyncFreePPO(PPO):
         return loss_sums
 
     def _capture(self) -> None:
-        """Record every mini-batch step of an update (forward, backward, all-reduce, rate, clip, Adam) as one CUDA
-        graph over fixed buffers, so that an update is one launch instead of thousands of kernel launches."""
+        """Record every mini-batch step of an update (forward, backward, rate, clip, Adam) as one CUDA graph over
+        fixed buffers, so that an update is one launch instead of thousands of kernel launches."""
         for group in self.optimizer.param_groups:
             group["capturable"] = True  # Adam keeps its step count on the device already (fused)
         graph = torch.cuda.CUDAGraph()
