@@ -26,11 +26,6 @@ LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule co
 EAGER_UPDATES_BEFORE_CAPTURE = 1
 
 
-def storage_samples(storage: RolloutStorage) -> int:
-    """Transitions one rollout stores: envs x steps."""
-    return storage.num_envs * storage.num_transitions_per_env
-
-
 class SyncFreePPO(PPO):
     """rsl-rl-lib's PPO with a host-sync-free update (the rollout side is inherited unchanged).
 
@@ -67,8 +62,13 @@ class SyncFreePPO(PPO):
         sizes = [p.numel() for p in self._params]
         self._flat = torch.zeros(sum(sizes) + 1, dtype=dtypes.pop(), device=self.device)
         self._grad_views = [v.view_as(p) for v, p in zip(self._flat[:-1].split(sizes), self._params)]
+        bucket = max(1, int(self.grad_reduce_bucket_mb * 2**20) // self._flat.element_size())
+        self._flat_buckets = self._flat.split(bucket)  # the all-reduce's pieces, fixed views of the buffer
+        self._on_cuda = torch.device(self.device).type == "cuda"
+        self._recurrent = self.actor.is_recurrent or self.critic.is_recurrent
         # The shuffle and the advantages are copied into fixed buffers, which a captured update reads.
-        self._num_samples = self.num_mini_batches * (storage_samples(self.storage) // self.num_mini_batches)
+        samples = self.storage.num_envs * self.storage.num_transitions_per_env
+        self._num_samples = self.num_mini_batches * (samples // self.num_mini_batches)
         self._perm = torch.empty(self._num_samples, dtype=torch.long, device=self.device)
         self._advantages = torch.zeros_like(self.storage.advantages)
         self.capture_update = self._resolve_capture(capture_update)
@@ -78,12 +78,10 @@ class SyncFreePPO(PPO):
         self._install_device_learning_rate()
 
     def _resolve_capture(self, value: bool | str) -> bool:
-        on_cuda = torch.device(self.device).type == "cuda"
-        recurrent = self.actor.is_recurrent or self.critic.is_recurrent
         # Several GPUs: a captured update trained correctly on 2 x H200, but the ranks then hung at exit (NCCL
         # all-reduce inside a graph); until that is solved, multi-GPU runs use the eager, still sync-free update.
         unmet = [need for need, missing in (
-            ("a CUDA rl_device", not on_cuda), ("feed-forward actor and critic", recurrent),
+            ("a CUDA rl_device", not self._on_cuda), ("feed-forward actor and critic", self._recurrent),
             ("use_mixed_precision=False", self.use_mixed_precision), ("multi_gpu=False", self.is_multi_gpu)) if missing]
         if value == "auto":
             return not unmet
@@ -105,15 +103,15 @@ class SyncFreePPO(PPO):
         # The rule runs in float64 like rsl-rl-lib's Python floats; Adam reads the float32 copy.
         self._lr64 = torch.tensor(rate, dtype=torch.float64, device=self.device)
         self._lr = torch.tensor(rate, dtype=torch.float32, device=self.device)
-        on_cuda = torch.device(self.device).type == "cuda"
         # Fused Adam takes a device-tensor rate without reading it; on the CPU the single-tensor Adam does.
-        flags = {"fused": on_cuda, "foreach": False, "capturable": False}
+        flags = {"fused": self._on_cuda, "foreach": False, "capturable": False}
         for group in self.optimizer.param_groups:
             group["lr"] = self._lr
             group.update(flags)
         for param, state in self.optimizer.state.items():
             if "step" in state:
-                state["step"] = state["step"].to(device=param.device if on_cuda else "cpu", dtype=torch.float32)
+                state["step"] = state["step"].to(device=param.device if self._on_cuda else "cpu",
+                                                 dtype=torch.float32)
         # A captured update reads the old rate and optimizer state: capture again from the next update on.
         self._graph, self._graph_loss_sums, self._eager_updates = None, None, 0
 
@@ -150,7 +148,7 @@ class SyncFreePPO(PPO):
         Returns the device tensor of summed [value loss, surrogate loss, entropy] over the mini-batches; with a
         captured update it is the graph's output, overwritten by the next update.
         """
-        if self.actor.is_recurrent or self.critic.is_recurrent:
+        if self._recurrent:
             return self._optimisation_steps(
                 self.storage.recurrent_mini_batch_generator(self.num_mini_batches, self.num_learning_epochs))
         # rsl-rl-lib's shuffle: one permutation per update, shared by its epochs
@@ -259,8 +257,7 @@ class SyncFreePPO(PPO):
         """
         if kl_mean is not None:
             self._flat[-1] = kl_mean
-        bucket = max(1, int(self.grad_reduce_bucket_mb * 2**20) // self._flat.element_size())
-        for piece in self._flat.split(bucket):
+        for piece in self._flat_buckets:
             torch.distributed.all_reduce(piece, op=torch.distributed.ReduceOp.SUM)
         self._flat /= self.gpu_world_size
         return None if kl_mean is None else self._flat[-1]
