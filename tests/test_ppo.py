@@ -8,6 +8,7 @@ updates their parameters, learning rates and losses must agree to float32 roundi
 from __future__ import annotations
 
 import copy
+import time
 
 import pytest
 import torch
@@ -170,39 +171,57 @@ def test_unsupported_settings_are_rejected_with_the_key(key, value, message):
         build(SYNC_FREE, **{key: value})
 
 
-def test_capture_is_refused_for_several_gpus_and_auto_leaves_it_off():
-    multi = {"global_rank": 0, "local_rank": 0, "world_size": 2}  # no process group is needed to construct
-    with pytest.raises(ValueError, match=r"capture_update=True needs a CUDA rl_device and multi_gpu=False"):
-        build(SYNC_FREE, multi_gpu=multi, capture_update=True)
-    assert build(SYNC_FREE, multi_gpu=multi).capture_update is False
+# gloo on the CPU stands in for NCCL everywhere; with two GPUs the same test runs over NCCL with the update
+# captured, all-reduces inside the graph, which must also let the ranks leave the process group and exit.
+BACKENDS = ["gloo"] + (["nccl"] if torch.cuda.device_count() >= 2 else [])
+EXIT_WITHIN_S = 300
 
 
-def _two_rank_worker(rank: int, world: int, init_file: str, results) -> None:
-    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+def _two_rank_worker(rank: int, world: int, init_file: str, backend: str, results) -> None:
+    device = "cpu"
+    if backend == "nccl":
+        device = f"cuda:{rank}"
+        torch.cuda.set_device(device)
+    dist.init_process_group(backend, init_method=f"file://{init_file}", rank=rank, world_size=world)
+    algorithms = []
     try:
         torch.set_num_threads(1)
         multi = {"global_rank": rank, "local_rank": rank, "world_size": world}
         out = {}
         for name in ("PPO", SYNC_FREE):
-            alg = build(name, multi_gpu=multi, desired_kl=0.002)
+            alg = build(name, multi_gpu=multi, device=device, desired_kl=0.002)
+            algorithms.append(alg)
             alg.broadcast_parameters()
             history = train(alg, 3, data_seed=100 + rank)  # each rank its own data, as each GPU its own worlds
-            out[name] = (history, parameters(alg))
+            out[name] = (history, parameters(alg), getattr(alg, "_graph", None) is not None)
         results[rank] = out
     finally:
+        for alg in algorithms:
+            if hasattr(alg, "release_graph"):
+                alg.release_graph()
         dist.destroy_process_group()
 
 
-def test_two_process_update_matches_rsl_rl_distributed_ppo(tmp_path):
-    """Gradient and KL averaging over two ranks (gloo on the CPU stands in for NCCL)."""
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_two_process_update_matches_rsl_rl_distributed_ppo(tmp_path, backend):
+    """Gradient and KL averaging over two ranks, then a clean exit."""
     world = 2
     with mp.Manager() as manager:
         results = manager.dict()
-        mp.spawn(_two_rank_worker, args=(world, str(tmp_path / "rendezvous"), results), nprocs=world)
+        ranks = mp.spawn(_two_rank_worker, args=(world, str(tmp_path / "rendezvous"), backend, results),
+                         nprocs=world, join=False)
+        deadline = time.monotonic() + EXIT_WITHIN_S
+        while not ranks.join(timeout=5):
+            if time.monotonic() > deadline:
+                for process in ranks.processes:
+                    process.kill()
+                pytest.fail(f"{backend}: the ranks did not exit within {EXIT_WITHIN_S} s "
+                            f"(finished training: ranks {sorted(results.keys())})")
         results = dict(results)
     for rank in range(world):
-        ref_history, ref_params = results[rank]["PPO"]
-        cand_history, cand_params = results[rank][SYNC_FREE]
+        ref_history, ref_params, _ = results[rank]["PPO"]
+        cand_history, cand_params, captured = results[rank][SYNC_FREE]
+        assert captured == (backend == "nccl")
         for ref, cand in zip(ref_history, cand_history):
             # rsl-rl-lib broadcasts the rate as a float32 tensor, rounding it once per mini-batch
             assert cand["lr"] == pytest.approx(ref["lr"], rel=1e-6)

@@ -84,7 +84,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
         print(f"[eval] written to {eval_path}", flush=True)
         task.close()
-        _leave_process_group()
+        _leave_process_group(runner)
         return result
 
     runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
@@ -129,13 +129,16 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         print(f"[train] done in {wall:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
               f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
     task.close()
-    _leave_process_group()
+    _leave_process_group(runner)
     return summary
 
 
-def _leave_process_group() -> None:
+def _leave_process_group(runner: Runner) -> None:
     """multi_gpu=True: rsl-rl-lib's runner joined a NCCL group; leaving it lets each rank exit without NCCL's leak
-    warning."""
+    warning. A captured update holds NCCL work that would make leaving hang, so it is freed first."""
+    release_graph = getattr(runner.alg, "release_graph", None)  # SyncFreePPO; rsl-rl-lib's PPO captures nothing
+    if release_graph is not None:
+        release_graph()
     if torch.distributed.is_available() and torch.distributed.is_initialized():
         torch.distributed.destroy_process_group()
 

@@ -9,8 +9,8 @@ same all-reduce as the gradients, and losses are summed on the device and read o
 arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/test_ppo.py checks this against rsl-rl-lib).
 
 Without host reads the update is still thousands of small kernel launches from Python (the policy networks are
-small, so launching costs more than computing). On one GPU the whole update is therefore recorded once as a CUDA
-graph and replayed (``capture_update``), which made Go1's update 5x faster on an H100 (docs/PERFORMANCE.md).
+small, so launching costs more than computing). The whole update, all-reduces included, is therefore recorded once
+as a CUDA graph and replayed (``capture_update``), which made Go1's update 5x faster on an H100 (docs/PERFORMANCE.md).
 """
 
 from __future__ import annotations
@@ -34,8 +34,9 @@ class SyncFreePPO(PPO):
     pointer to rsl-rl-lib's own ``PPO``, which supports them.
 
     ``capture_update`` (``auto``, ``True``, ``False``; train YAML ``algorithm.capture_update``): replay the update as
-    a CUDA graph. ``auto`` captures where it can: a CUDA device, one GPU, feed-forward networks, no mixed precision.
-    The first update runs eagerly (it creates Adam's state), the second captures.
+    a CUDA graph. ``auto`` captures where it can: a CUDA device, feed-forward networks, no mixed precision.
+    The first update runs eagerly (it creates Adam's state), the second captures. With several GPUs call
+    ``release_graph`` before leaving the process group (the training launcher does).
     """
 
     def __init__(self, *args, capture_update: bool | str = "auto", **kwargs) -> None:
@@ -78,11 +79,9 @@ class SyncFreePPO(PPO):
         self._install_device_learning_rate()
 
     def _resolve_capture(self, value: bool | str) -> bool:
-        # Several GPUs: a captured update trained correctly on 2 x H200, but the ranks then hung at exit (NCCL
-        # all-reduce inside a graph); until that is solved, multi-GPU runs use the eager, still sync-free update.
         unmet = [need for need, missing in (
             ("a CUDA rl_device", not self._on_cuda), ("feed-forward actor and critic", self._recurrent),
-            ("use_mixed_precision=False", self.use_mixed_precision), ("multi_gpu=False", self.is_multi_gpu)) if missing]
+            ("use_mixed_precision=False", self.use_mixed_precision)) if missing]
         if value == "auto":
             return not unmet
         if value is True:
@@ -162,6 +161,14 @@ class SyncFreePPO(PPO):
             self._capture()
         self._graph.replay()  # type: ignore[union-attr]
         return self._graph_loss_sums  # type: ignore[return-value]
+
+    def release_graph(self) -> None:
+        """Free the captured update. With several GPUs the graph holds NCCL work, and leaving the process group
+        while it exists hangs every rank (pytorch/pytorch#115388): call this before ``destroy_process_group``."""
+        if self._graph is not None:
+            torch.cuda.synchronize(self.device)
+            self._graph.reset()
+        self._graph, self._graph_loss_sums, self._eager_updates = None, None, 0
 
     def _warm_up_update(self) -> torch.Tensor:
         """An eager update on a side stream, as CUDA graph capture asks: it creates Adam's state, cuBLAS workspaces
