@@ -35,7 +35,7 @@ def check(task_name: str, num_envs: int, steps: int) -> dict:
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
     runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
-    # Compiles kernels, captures the step graphs and (second update, SyncFreePPO on one GPU) the update graph,
+    # Compiles kernels, captures the step graphs and (second update, SyncFreePPO) the update graph,
     # allocates storage: all allowed to sync.
     runner.learn(2)
     env.stats.pop()
