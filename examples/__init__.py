@@ -1,1 +1,1 @@
-"""Example tasks that live outside the package, the way a user's own tasks do (see the README's "Write your own task")."""
+"""Example tasks that live outside the package, as a user's own tasks do (see the README's "Write your own task")."""

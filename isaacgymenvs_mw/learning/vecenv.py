@@ -59,7 +59,7 @@ class EpisodeStats:
 
 
 class RslRlVecEnv(VecEnv):
-    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs) and 'critic' (states, or obs when numStates is 0)."""
+    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs) and 'critic' (states; obs if numStates is 0)."""
 
     def __init__(self, task: VecTask) -> None:
         self.task = task

@@ -394,7 +394,8 @@ class VecTask:
                     f"{self.num_obs} / env.numStates={self.num_states} ({err})"
                 ) from err
             raise
-        for key, buf, size in (("numObservations", self.obs_buf, self.num_obs), ("numStates", self.states_buf, self.num_states)):
+        for key, buf, size in (("numObservations", self.obs_buf, self.num_obs),
+                               ("numStates", self.states_buf, self.num_states)):
             written = (~torch.isnan(buf)).any(dim=0)
             if size and not bool(written.all()):
                 raise ValueError(
