@@ -112,7 +112,7 @@ class SyncFreePPO(PPO):
                 state["step"] = state["step"].to(device=param.device if self._on_cuda else "cpu",
                                                  dtype=torch.float32)
         # A captured update reads the old rate and optimizer state: capture again from the next update on.
-        self._graph, self._graph_loss_sums, self._eager_updates = None, None, 0
+        self.release_graph()
 
     def _adapt_learning_rate(self, kl_mean: torch.Tensor) -> None:
         too_far = kl_mean > self.desired_kl * 2.0
