@@ -14,11 +14,9 @@ import re
 import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, match_joint_values, load_spec
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
-
-POLICY_OBS = 48  # lin vel 3, ang vel 3, gravity 3, command 3, joint pos 12, joint vel 12, last action 12
-PRIVILEGED_EXTRA = 7  # friction, added base mass, base height, foot contacts 4
 
 
 class LeggedTask(VecTask):
@@ -36,6 +34,8 @@ class LeggedTask(VecTask):
         self._init_buffers(env)
         self._init_rewards(env["rewards"])
         self._init_randomization(env.get("randomization", {}))
+        self.build_observation_layouts()
+        self.noise_scale = self.obs_layout.noise_scale(self.device)
 
     # ----------------------------------------------------------------- model
     def model_request(self) -> ModelRequest:
@@ -125,12 +125,6 @@ class LeggedTask(VecTask):
         self.contact_force_norm = torch.zeros(n, self._contact_adr.shape[0], device=dev)
         self.torques = self.sim.qfrc_actuator[:, 6:]
 
-        expected_states = POLICY_OBS + PRIVILEGED_EXTRA
-        if self.num_obs != POLICY_OBS:
-            raise ValueError(f"env.numObservations={self.num_obs}, but legged tasks observe {POLICY_OBS} values")
-        if self.num_states not in (0, expected_states):
-            raise ValueError(f"env.numStates={self.num_states}: legged tasks give 0 (no privileged critic) or "
-                             f"{expected_states} (policy observation + friction, added mass, base height, 4 contacts)")
 
     def _init_rewards(self, rew: dict) -> None:
         available = sorted(name[len("_reward_"):] for name in dir(self) if name.startswith("_reward_"))
@@ -166,17 +160,31 @@ class LeggedTask(VecTask):
         self.max_push_vel = float(rand.get("maxPushVelXY", 0.0))
         noise = rand.get("observationNoise", {})
         level = float(noise.get("noiseLevel", 0.0)) if noise.get("enabled", False) else 0.0
-        s = self.obs_scales
-        nj = self.num_actions
-        self.noise_scale = level * torch.cat((
-            torch.full((3,), float(noise.get("linVel", 0.0)) * s["linVel"]),
-            torch.full((3,), float(noise.get("angVel", 0.0)) * s["angVel"]),
-            torch.full((3,), float(noise.get("gravity", 0.0))),
-            torch.zeros(3),
-            torch.full((nj,), float(noise.get("dofPos", 0.0)) * s["dofPos"]),
-            torch.full((nj,), float(noise.get("dofVel", 0.0)) * s["dofVel"]),
-            torch.zeros(nj),
-        )).to(dev)
+        self.obs_noise = {k: level * float(noise.get(k, 0.0)) for k in ("linVel", "angVel", "gravity", "dofPos",
+                                                                          "dofVel")}
+
+    # ----------------------------------------------------------- observations
+    def observation_terms(self) -> list[ObsTerm]:
+        s, noise, nj = self.obs_scales, self.obs_noise, self.num_actions
+        return [
+            ObsTerm("base_lin_vel", 3, s["linVel"], noise["linVel"] * s["linVel"]),  # body frame, m/s
+            ObsTerm("base_ang_vel", 3, s["angVel"], noise["angVel"] * s["angVel"]),  # body frame, rad/s
+            ObsTerm("projected_gravity", 3, 1.0, noise["gravity"]),                   # unit vector, body frame
+            ObsTerm("commands", 3),                     # vx, vy (linVel scale), yaw rate (angVel scale)
+            ObsTerm("dof_pos", nj, s["dofPos"], noise["dofPos"] * s["dofPos"]),       # minus the default pose
+            ObsTerm("dof_vel", nj, s["dofVel"], noise["dofVel"] * s["dofVel"]),
+            ObsTerm("actions", nj),                     # the last policy output
+        ]
+
+    def state_terms(self) -> list[ObsTerm]:
+        # The critic sees the noiseless policy observation plus what the policy cannot measure.
+        policy = [ObsTerm(t.name, t.size, t.scale) for t in self.observation_terms()]
+        return policy + [
+            ObsTerm("ground_friction", 1),
+            ObsTerm("added_base_mass", 1),  # kg
+            ObsTerm("base_height", 1),      # m
+            ObsTerm("feet_contact", len(self.feet)),  # 1 where the foot's contact force exceeds 1 N
+        ]
 
     # --------------------------------------------------------------- stepping
     def pre_physics_step(self, actions: torch.Tensor) -> None:

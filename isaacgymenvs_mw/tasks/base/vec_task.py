@@ -36,6 +36,7 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 
@@ -95,6 +96,8 @@ class VecTask:
         self.set_viewer()
         self.allocate_buffers()
         self.obs_dict: dict[str, torch.Tensor] = {}
+        self.obs_layout: ObsLayout | None = None
+        self.state_layout: ObsLayout | None = None
 
     # --------------------------------------------------------------- building
     def create_sim(self) -> None:
@@ -238,6 +241,29 @@ class VecTask:
     def compute_observations(self) -> None:
         raise NotImplementedError
 
+    def observation_terms(self) -> list[ObsTerm] | None:
+        """The policy observation as named terms, in column order; None: the task declares no layout."""
+        return None
+
+    def state_terms(self) -> list[ObsTerm] | None:
+        """The privileged critic state (numStates > 0) as named terms; None: no layout declared."""
+        return None
+
+    def build_observation_layouts(self) -> None:
+        """Derive ``obs_layout`` / ``state_layout`` from the declared terms and check them against the YAML sizes.
+
+        ``reset()`` calls it; a task whose term sizes are known earlier may call it at the end of its
+        ``__init__`` so that a wrong size fails at construction.
+        """
+        terms = self.observation_terms()
+        if terms is not None:
+            self.obs_layout = ObsLayout(terms)
+            self.obs_layout.check(self.num_obs, "env.numObservations")
+        terms = self.state_terms() if self.num_states > 0 else None
+        if terms is not None:
+            self.state_layout = ObsLayout(terms)
+            self.state_layout.check(self.num_states, "env.numStates")
+
     # ---------------------------------------------------------------- contract
     def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
         """A boolean (num_envs,) mask from a mask or an index tensor (IsaacGymEnvs passes indices)."""
@@ -364,6 +390,8 @@ class VecTask:
 
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
+        if self.obs_layout is None and self.state_layout is None:
+            self.build_observation_layouts()
         self.reset_idx(self._all_envs)
         self._compute_checked_observations()
         return self._clamped_obs_dict()
