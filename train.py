@@ -1,6 +1,7 @@
 """Train or evaluate a task: python train.py task=Cartpole [num_envs=N seed=S max_iterations=K headless=True ...]
 
 python train.py task=Cartpole test=True checkpoint=runs/Cartpole/<stamp>/model_60.pt   evaluates a policy.
+python train.py --config-dir /my/project/cfg task=MyTask task_module=my_tasks   a task from outside the repository.
 """
 
 import time
@@ -15,8 +16,12 @@ import isaacgymenvs_mw.utils.config  # noqa: E402,F401  (registers the YAML reso
 
 @hydra.main(version_base="1.3", config_path="cfg", config_name="config")
 def main(cfg: DictConfig) -> None:
-    from isaacgymenvs_mw.learning.launch import run
+    from hydra.core.hydra_config import HydraConfig
 
+    from isaacgymenvs_mw.learning.launch import run
+    from isaacgymenvs_mw.utils.config import record_task_dir
+
+    record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the task YAML's folder
     run(cfg, started_at=_STARTED_AT)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import Sequence
 
 __version__ = "0.1.0"
@@ -15,10 +16,13 @@ def make(
     headless: bool = True,
     seed: int | None = None,
     overrides: Sequence[str] = (),
+    config_dir: str | os.PathLike | None = None,
 ):
     """Build a task as train.py would, without training: ``env = isaacgymenvs_mw.make("Cartpole", num_envs=16)``.
 
-    ``overrides`` are Hydra overrides, e.g. ``["task.env.maxEffort=200"]``.
+    ``overrides`` are Hydra overrides, e.g. ``["task.env.maxEffort=200"]``. ``config_dir`` is a folder of your own
+    holding ``task/<Name>.yaml`` and ``train/<Name>PPO.yaml`` (train.py's ``--config-dir``); a task class outside
+    the package is imported with ``overrides=["task_module=my_tasks"]`` (the module must be importable).
     """
     from isaacgymenvs_mw.learning.launch import build_task
     from isaacgymenvs_mw.utils.config import compose_config
@@ -27,7 +31,7 @@ def make(
     args = [f"task={task}", f"sim_device={sim_device}", f"rl_device={rl_device}", f"headless={headless}"]
     if num_envs is not None:
         args.append(f"num_envs={num_envs}")
-    cfg = compose_config([*args, *overrides])
+    cfg = compose_config([*args, *overrides], config_dir=config_dir)
     if seed is not None:
         set_seed(seed)
     return build_task(cfg)

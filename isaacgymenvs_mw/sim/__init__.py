@@ -31,8 +31,11 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     JointDrive,
     ModelRequest,
     SolverOptions,
+    actuated_joints,
     build_model,
+    is_mjcf,
     load_spec,
+    match_body_names,
     match_joint_values,
     movable_joint_names,
 )
@@ -45,8 +48,11 @@ __all__ = [
     "ModelRequest",
     "SolverOptions",
     "Simulator",
+    "actuated_joints",
     "build_model",
+    "is_mjcf",
     "load_spec",
+    "match_body_names",
     "match_joint_values",
     "movable_joint_names",
 ]

@@ -2,6 +2,12 @@
 
 MuJoCo compiles URDF directly, but a URDF cannot say which joints are driven and how, where the floor
 is, or which solver to use. We load the file into an ``MjSpec`` and add those from the task YAML.
+
+An MJCF may already say some of it. Its own actuators (gear, ctrlrange, forcerange), joint limits, armature and
+contact settings are kept as written: the model's actuators are the asset's, in file order, followed by one per
+joint that the YAML drives; a YAML drive on a joint the asset already actuates is an error, so that ``ctrl[:, i]``
+never silently reaches a second actuator on the same joint. An MJCF root body with a free joint is the floating
+base; its ``pos``/``quat`` is the start pose unless the task gives one.
 """
 
 from __future__ import annotations
@@ -72,10 +78,19 @@ class ModelRequest:
     armature: Mapping[str, float] = field(default_factory=dict)
     joint_damping: Mapping[str, float] = field(default_factory=dict)
     ground: GroundPlane | None = None
-    base_init_pos: Sequence[float] = (0.0, 0.0, 0.0)
-    base_init_quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0)  # MuJoCo order (w, x, y, z)
+    # Floating base start pose; None keeps the root body's own pos / quat (MuJoCo order w, x, y, z).
+    base_init_pos: Sequence[float] | None = None
+    base_init_quat: Sequence[float] | None = None
     contact_bodies: Sequence[str] = ()
     options: SolverOptions = field(default_factory=SolverOptions)
+    # {joint: N or N m}: cap on the total actuator force at the joint (MuJoCo actuatorfrcrange = ±value).
+    effort_limits: Mapping[str, float] = field(default_factory=dict)
+    # {actuator or joint name / regex: value}, applied to every actuator it selects (the asset's and added ones).
+    gear: Mapping[str, float] = field(default_factory=dict)
+    ctrl_range: Mapping[str, Sequence[float]] = field(default_factory=dict)
+    # True: the asset's contype/conaffinity/condim/friction stay as written and the ground collides with every
+    # geom that collides with anything (MJCF); False: robot geoms touch only the ground (+ selfCollisions) (URDF).
+    keep_asset_contacts: bool = False
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True) -> mujoco.MjSpec:
@@ -94,6 +109,34 @@ def load_spec(asset_file: Path, collapse_fixed_joints: bool = True) -> mujoco.Mj
 def movable_joint_names(spec: mujoco.MjSpec) -> list[str]:
     """Names of the hinge and slide joints, in the order MuJoCo will lay them out in qpos."""
     return [j.name for j in spec.joints if j.type in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)]
+
+
+def is_mjcf(asset_file: Path) -> bool:
+    """MJCF by extension (``.xml``); everything else (``.urdf``) is compiled as URDF by MuJoCo."""
+    return Path(asset_file).suffix.lower() == ".xml"
+
+
+def actuated_joints(spec: mujoco.MjSpec) -> dict[str, str]:
+    """{joint: actuator} for the joints that the asset's own actuators drive (joint transmissions)."""
+    out: dict[str, str] = {}
+    for act in spec.actuators:
+        if act.trntype == mujoco.mjtTrn.mjTRN_JOINT and act.target:
+            out.setdefault(act.target, act.name)
+    return out
+
+
+def match_body_names(patterns: Sequence[str] | str | None, body_names: Sequence[str], key: str) -> list[str]:
+    """Bodies whose names match any of the regular expressions (full match), in model order; a pattern that
+    matches no body is an error naming ``key``."""
+    if isinstance(patterns, str):
+        patterns = [patterns]
+    out: list[str] = []
+    for pattern in patterns or []:
+        hits = [n for n in body_names if re.fullmatch(pattern, n)]
+        if not hits:
+            raise ValueError(f"{key}: '{pattern}' matches no body; bodies: {list(body_names)}")
+        out += [h for h in hits if h not in out]
+    return out
 
 
 def match_joint_values(
@@ -130,35 +173,60 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     """Compile the task's model: asset + base + ground + actuators + contact sensors + solver options."""
     spec = load_spec(request.asset_file, request.collapse_fixed_joints)
     joints = movable_joint_names(spec)
-    _check_joint_types(spec, request.asset_file)
-
     root = _root_body(spec)
+    has_free_root = _check_joint_types(spec, request.asset_file, root)
+    if has_free_root and request.fix_base:
+        raise ValueError(
+            f"{request.asset_file}: the root body '{root.name}' has a free joint (a floating base) but "
+            "env.asset.fixBaseLink is True; set fixBaseLink: False, or remove the free joint to weld it to the world"
+        )
     if not request.fix_base:
-        root.add_freejoint(name="root")
-        root.pos = list(request.base_init_pos)
-        root.quat = list(request.base_init_quat)
+        if not has_free_root:
+            root.add_freejoint(name="root")
+        if request.base_init_pos is not None:
+            root.pos = list(request.base_init_pos)
+        if request.base_init_quat is not None:
+            root.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # replaces an euler/axisangle in the file
+            root.quat = list(request.base_init_quat)
 
-    _set_collision_filter(spec, request.self_collisions)
+    collide_bits = _set_collision_filter(spec, request.self_collisions, request.keep_asset_contacts)
     if request.ground is not None:
         spec.worldbody.add_geom(
             name="ground",
             type=mujoco.mjtGeom.mjGEOM_PLANE,
             size=[0.0, 0.0, 0.05],  # zero half-sizes: an infinite plane
             friction=[request.ground.friction, 0.005, 0.0001],
-            contype=_GROUND_BIT,
-            conaffinity=_ROBOT_BIT | _GROUND_BIT,
-            condim=3,
-            priority=1,  # the ground's friction decides the contact's friction
+            contype=collide_bits[0],
+            conaffinity=collide_bits[1],
+            # Framework filter: the ground's friction and condim decide the contact. Asset contacts kept: equal
+            # priority, so MuJoCo's mixing (the larger friction, the larger condim) lets the asset's settings count.
+            condim=1 if request.keep_asset_contacts else 3,
+            priority=0 if request.keep_asset_contacts else 1,
         )
 
     for name, value in request.armature.items():
         spec.joint(name).armature = float(value)
     for name, value in request.joint_damping.items():
         spec.joint(name).damping = [float(value)] + list(spec.joint(name).damping)[1:]
+    for name, value in request.effort_limits.items():
+        _check_joint(spec, name, "env.control.effortLimit")
+        joint = spec.joint(name)
+        joint.actfrcrange = [-float(value), float(value)]
+        joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
+    owned = actuated_joints(spec)
+    for name, drive in request.drives.items():
+        _check_joint(spec, name, "env.control.driveMode")
+        if drive.mode != "none" and name in owned:
+            raise ValueError(
+                f"env.control.driveMode: joint '{name}' is already driven by the asset's actuator '{owned[name]}' "
+                f"({request.asset_file}); the asset's actuators are used as written, so remove the YAML drive for "
+                "this joint (defaultDriveMode applies only to joints the asset does not actuate)"
+            )
     for name in joints:
-        drive = request.drives.get(name, JointDrive())
-        _add_actuator(spec, name, drive)
+        _add_actuator(spec, name, request.drives.get(name, JointDrive()))
+    _override_actuators(spec, request.gear, "env.control.gear", _set_gear)
+    _override_actuators(spec, request.ctrl_range, "env.control.ctrlRange", _set_ctrl_range)
 
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
@@ -176,13 +244,28 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     return spec.compile()
 
 
-def _check_joint_types(spec: mujoco.MjSpec, asset_file: Path) -> None:
+def _check_joint(spec: mujoco.MjSpec, name: str, key: str) -> None:
+    if spec.joint(name) is None:
+        raise ValueError(f"{key}: '{name}' is not a joint of the asset; joints: {movable_joint_names(spec)}")
+
+
+def _check_joint_types(spec: mujoco.MjSpec, asset_file: Path, root: mujoco.MjsBody) -> bool:
+    """Only hinge/slide joints, plus at most a free joint on the root body (the floating base); True if it has one."""
+    free_root = False
     for j in spec.joints:
-        if j.type not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
-            raise ValueError(
-                f"{asset_file}: joint '{j.name}' is a {j.type.name}; only revolute/continuous/prismatic joints are "
-                "supported (the floating base is added by the framework when env.asset.fixBaseLink is False)"
-            )
+        if j.type in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            continue
+        if j.type == mujoco.mjtJoint.mjJNT_FREE and j.parent.name == root.name and not free_root:
+            free_root = True
+            continue
+        raise ValueError(
+            f"{asset_file}: joint '{j.name}' is a {j.type.name}; only revolute/continuous/prismatic (hinge/slide) "
+            "joints are supported, plus one free joint on the root body (the floating base; without it the "
+            "framework adds one when env.asset.fixBaseLink is False)"
+        )
+    if free_root and next(iter(root.joints)).type != mujoco.mjtJoint.mjJNT_FREE:
+        raise ValueError(f"{asset_file}: the free joint of root body '{root.name}' must be its first joint")
+    return free_root
 
 
 def _root_body(spec: mujoco.MjSpec) -> mujoco.MjsBody:
@@ -193,10 +276,20 @@ def _root_body(spec: mujoco.MjSpec) -> mujoco.MjsBody:
     return children[0]
 
 
-def _set_collision_filter(spec: mujoco.MjSpec, self_collisions: bool) -> None:
+def _set_collision_filter(spec: mujoco.MjSpec, self_collisions: bool, keep: bool) -> tuple[int, int]:
+    """Set the robot's collision bits; returns the ground's (contype, conaffinity)."""
+    if keep:
+        # Collide with every geom that collides with anything: MuJoCo pairs geoms when
+        # (contype1 & conaffinity2) | (contype2 & conaffinity1) is non-zero.
+        contype = conaffinity = 0
+        for geom in spec.geoms:
+            contype |= int(geom.conaffinity)
+            conaffinity |= int(geom.contype)
+        return contype or _GROUND_BIT, conaffinity or _GROUND_BIT
     for geom in spec.geoms:
         geom.contype = _ROBOT_BIT if self_collisions else 0
         geom.conaffinity = _GROUND_BIT | (_ROBOT_BIT if self_collisions else 0)
+    return _GROUND_BIT, _ROBOT_BIT | _GROUND_BIT
 
 
 def _add_actuator(spec: mujoco.MjSpec, joint_name: str, drive: JointDrive) -> None:
@@ -204,13 +297,63 @@ def _add_actuator(spec: mujoco.MjSpec, joint_name: str, drive: JointDrive) -> No
         raise ValueError(f"drive mode '{drive.mode}' of joint '{joint_name}' is not one of {DRIVE_MODES}")
     if drive.mode == "none":
         return
+    joint = spec.joint(joint_name)
+    if drive.mode == "effort" and not _force_capped(joint):
+        raise ValueError(
+            f"env.control.driveMode: joint '{joint_name}' has an effort drive but no torque cap: the asset gives "
+            "none (URDF <limit effort>, MJCF actuatorfrcrange); set env.control.effortLimit: {" + joint_name
+            + ": <N m>}"
+        )
     act = spec.add_actuator(name=joint_name, target=joint_name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
     if drive.mode == "effort":
         act.set_to_motor()
     else:
         act.set_to_position(kp=float(drive.stiffness), kv=float(drive.damping))
-    # Command ranges stay open: the joint's actuatorfrcrange (URDF effort limit) clamps the force.
+    # Command ranges stay open: the joint's actuatorfrcrange (URDF effort limit / effortLimit) clamps the force.
     act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+
+
+def _force_capped(joint: mujoco.MjsJoint) -> bool:
+    lo, hi = (float(v) for v in joint.actfrcrange)
+    return joint.actfrclimited != mujoco.mjtLimited.mjLIMITED_FALSE and lo < hi
+
+
+def _override_actuators(spec: mujoco.MjSpec, patterns: Mapping[str, object], key: str, apply) -> None:
+    """Apply {actuator or joint name / regex: value} to the actuators selected (by own name or driven joint)."""
+    actuators = list(spec.actuators)
+    for pattern, value in (patterns or {}).items():
+        hits = [a for a in actuators if _selects(pattern, a.name) or _selects(pattern, a.target)]
+        if not hits:
+            listing = [f"{a.name} -> {a.target}" for a in actuators]
+            raise ValueError(
+                f"{key}: '{pattern}' matches no actuator, by actuator name or by the joint it drives; "
+                f"actuators of this model (name -> joint): {listing}"
+            )
+        for act in hits:
+            apply(act, value, f"{key}.{pattern}")
+
+
+def _selects(pattern: str, name: str | None) -> bool:
+    return bool(name) and (pattern == name or re.search(pattern, name) is not None)
+
+
+def _set_gear(act: mujoco.MjsActuator, value: object, key: str) -> None:
+    try:
+        gear = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{key}={value!r} is invalid: give a number (the actuator's gear ratio)") from None
+    act.gear = [gear] + [0.0] * 5
+
+
+def _set_ctrl_range(act: mujoco.MjsActuator, value: object, key: str) -> None:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{key}={value!r} is invalid: give [low, high]") from None
+    if not lo < hi:
+        raise ValueError(f"{key}={value!r} is invalid: low must be < high")
+    act.ctrlrange = [lo, hi]
+    act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
 
 def _apply_options(spec: mujoco.MjSpec, o: SolverOptions) -> None:

@@ -128,6 +128,15 @@ class Simulator:
             if int(m.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
         ]
         self.body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody)]
+        # ctrl[:, i] is the command of actuator i: the asset's own actuators in file order, then one per joint the
+        # YAML drives, in joint order. actuator_joints[i] is the joint it drives (None: tendon, site, ... transmission).
+        self.actuator_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"actuator{a}"
+                               for a in range(m.nu)]
+        self.actuator_joints = [
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))
+            if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) else None
+            for a in range(m.nu)
+        ]
         self.contact_sensors: dict[str, ContactSensor] = {}
         for s in range(m.nsensor):
             is_contact = int(m.sensor_type[s]) == int(mujoco.mjtSensor.mjSENS_CONTACT)
@@ -138,6 +147,11 @@ class Simulator:
     @property
     def num_dof(self) -> int:
         return self.dof_pos.shape[1]
+
+    @property
+    def num_actuators(self) -> int:
+        """Columns of ``ctrl`` (MuJoCo's nu)."""
+        return int(self.mj_model.nu)
 
     @property
     def dt(self) -> float:

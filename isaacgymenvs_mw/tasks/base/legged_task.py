@@ -9,11 +9,11 @@ policy dt; a zero scale removes the term. Everything a user would tune lives in 
 from __future__ import annotations
 
 import math
-import re
 
 import torch
 
-from isaacgymenvs_mw.sim import ModelRequest, match_joint_values, load_spec
+from isaacgymenvs_mw.sim import ModelRequest, load_spec, match_joint_values
+from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
@@ -43,15 +43,12 @@ class LeggedTask(VecTask):
         env = self.cfg["env"]
         asset = env["asset"]
         bodies = _body_names(load_spec(request.asset_file, request.collapse_fixed_joints))
-        sensed = []
+        sensed = list(request.contact_bodies)  # env.asset.contactBodies, then the bodies the rewards read
         for key in ("footBodies", "terminateContactBodies", "penalizeContactBodies"):
             for body in _select(asset.get(key, []), bodies, f"env.asset.{key}"):
                 if body not in sensed:
                     sensed.append(body)
         request.contact_bodies = sensed
-        init = env["baseInitState"]
-        request.base_init_pos = tuple(init["pos"])
-        request.base_init_quat = tuple(init.get("rot", (1.0, 0.0, 0.0, 0.0)))
         return request
 
     def make_simulator(self, request, per_world_fields=()):
@@ -350,16 +347,3 @@ class LeggedTask(VecTask):
 
 def _body_names(spec) -> list[str]:
     return [b.name for b in spec.bodies]
-
-
-def _select(patterns, names: list[str], key: str) -> list[str]:
-    """Bodies whose names match any of the regular expressions (full match), in model order."""
-    if isinstance(patterns, str):
-        patterns = [patterns]
-    out = []
-    for pattern in patterns:
-        hits = [n for n in names if re.fullmatch(pattern, n)]
-        if not hits:
-            raise ValueError(f"{key}: '{pattern}' matches no body; bodies: {names}")
-        out += [h for h in hits if h not in out]
-    return out

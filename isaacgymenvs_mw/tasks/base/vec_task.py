@@ -31,8 +31,11 @@ from isaacgymenvs_mw.sim import (
     ModelRequest,
     Simulator,
     SolverOptions,
+    actuated_joints,
     build_model,
+    is_mjcf,
     load_spec,
+    match_body_names,
     match_joint_values,
     movable_joint_names,
 )
@@ -41,6 +44,16 @@ from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
+
+# Hooks a task must write, and why VecTask cannot supply them.
+REQUIRED_HOOKS = {
+    "pre_physics_step": "it turns the policy's actions into actuator commands (self.sim.ctrl); only the task knows "
+                        "what an action means",
+    "post_physics_step": "it computes rewards and resets after the physics (progress_buf += 1, rew_buf, reset_buf, "
+                         "reset_idx, compute_observations)",
+    "compute_observations": "it fills obs_buf (and states_buf when numStates > 0); reset() and every step return "
+                            "what it writes",
+}
 
 
 class VecTask:
@@ -58,6 +71,7 @@ class VecTask:
     ) -> None:
         self.cfg = config
         env = config["env"]
+        self._check_required_hooks()
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
         self.device = self.sim_device
@@ -90,6 +104,7 @@ class VecTask:
             raise RuntimeError(f"{type(self).__name__}.create_sim() must set self.sim")
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
+        self.check_action_size()
 
         self.viewer = None
         self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
@@ -105,31 +120,60 @@ class VecTask:
         self.sim = self.make_simulator(self.model_request())
 
     def model_request(self) -> ModelRequest:
-        """What ``create_sim`` asks the sim layer to build; tasks extend it (contact bodies, base pose, ...)."""
+        """What ``create_sim`` asks the sim layer to build, from ``env.asset``, ``env.control``, ``env.plane``,
+        ``env.baseInitState`` and ``sim``; tasks may extend it (more contact bodies, per-world fields, ...)."""
         env, sim = self.cfg["env"], self.cfg.get("sim", {})
         asset = env.get("asset", {})
         asset_file = self.asset_path(asset)
         spec = load_spec(asset_file, asset.get("collapseFixedJoints", True))
         joints = movable_joint_names(spec)
         control = env.get("control", {})
-        default_mode = str(control.get("defaultDriveMode", "none"))
-        modes = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode", default_mode)
-        stiffness = match_joint_values(control.get("stiffness"), joints, "env.control.stiffness", 0.0)
-        damping = match_joint_values(control.get("damping"), joints, "env.control.damping", 0.0)
-        drives = {j: JointDrive(str(modes[j]), float(stiffness[j]), float(damping[j])) for j in joints}
         plane = env.get("plane", {})
         ground = GroundPlane(float(plane.get("friction", 1.0))) if plane.get("enabled", False) else None
+        fix_base = bool(asset.get("fixBaseLink", True))
+        base_pos, base_quat = self._base_init_pose(env) if not fix_base else (None, None)
+        keep_contacts = bool(asset.get("keepAssetContacts", is_mjcf(asset_file)))
+        if keep_contacts and "selfCollisions" in asset:
+            raise ValueError(
+                "env.asset.selfCollisions is set but the asset's own contact settings are kept "
+                "(env.asset.keepAssetContacts is True, the default for an MJCF): set keepAssetContacts: False to "
+                "use the framework's collision filter, or remove selfCollisions and say it in the MJCF"
+            )
         return ModelRequest(
             asset_file=asset_file,
-            fix_base=bool(asset.get("fixBaseLink", True)),
+            fix_base=fix_base,
             collapse_fixed_joints=bool(asset.get("collapseFixedJoints", True)),
             self_collisions=bool(asset.get("selfCollisions", False)),
-            drives=drives,
+            drives=joint_drives(control, joints, actuated_joints(spec)),
             armature=match_joint_values(asset.get("armature"), joints, "env.asset.armature"),
             joint_damping=match_joint_values(asset.get("jointDamping"), joints, "env.asset.jointDamping"),
             ground=ground,
+            base_init_pos=base_pos,
+            base_init_quat=base_quat,
+            contact_bodies=match_body_names(asset.get("contactBodies"), [b.name for b in spec.bodies],
+                                            "env.asset.contactBodies"),
             options=solver_options(sim),
+            effort_limits={j: float(v) for j, v in match_joint_values(
+                control.get("effortLimit"), joints, "env.control.effortLimit").items()},
+            gear=dict(control.get("gear") or {}),
+            ctrl_range=dict(control.get("ctrlRange") or {}),
+            keep_asset_contacts=keep_contacts,
         )
+
+    @staticmethod
+    def _base_init_pose(env: dict) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
+        """``env.baseInitState`` pos / rot (w, x, y, z) of a floating base; None where the YAML gives none (the
+        asset's root body pose is kept)."""
+        init = env.get("baseInitState") or {}
+        out = []
+        for key, size in (("pos", 3), ("rot", 4)):
+            value = init.get(key)
+            if value is not None and len(value) != size:
+                raise ValueError(f"env.baseInitState.{key}={list(value)} is invalid: give {size} numbers")
+            out.append(None if value is None else tuple(float(v) for v in value))
+        if out[1] is not None and not math.isclose(sum(v * v for v in out[1]), 1.0, rel_tol=1e-3):
+            raise ValueError(f"env.baseInitState.rot={list(out[1])} is not a unit quaternion (w, x, y, z)")
+        return out[0], out[1]
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         sim = self.cfg.get("sim", {})
@@ -145,14 +189,27 @@ class VecTask:
         )
 
     def asset_path(self, asset_cfg: dict) -> Path:
-        root = asset_cfg.get("assetRoot") or ASSETS_DIR
+        """``env.asset.assetRoot`` / ``assetFileName``. An empty root is the repository's ``assets/``; a relative
+        root is relative to the task YAML's folder (``yaml_dir``, recorded when train.py / ``make()`` compose the
+        config), or to the working directory for a config built by hand."""
         name = asset_cfg.get("assetFileName")
         if not name:
             raise ValueError("env.asset.assetFileName is not set in the task YAML")
-        path = Path(root) / name
+        root = str(asset_cfg.get("assetRoot") or "")
+        yaml_dir = self.cfg.get("yaml_dir")
+        if not root:
+            base, how = ASSETS_DIR, "empty assetRoot: the repository's assets/ folder"
+        elif Path(root).expanduser().is_absolute():
+            base, how = Path(root).expanduser(), "absolute assetRoot"
+        elif yaml_dir:
+            base, how = Path(yaml_dir) / root, f"relative assetRoot, resolved against the task YAML's folder {yaml_dir}"
+        else:
+            base, how = Path.cwd() / root, ("relative assetRoot, resolved against the working directory: the config "
+                                            "records no task YAML folder (task.yaml_dir)")
+        path = base / name
         if not path.is_file():
             raise FileNotFoundError(
-                f"env.asset: asset file '{path}' does not exist (assetRoot='{root}', assetFileName='{name}')"
+                f"env.asset: asset file '{path}' does not exist (assetRoot='{root}', assetFileName='{name}'; {how})"
             )
         return path
 
@@ -230,16 +287,39 @@ class VecTask:
 
     # ------------------------------------------------------------------ hooks
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        raise NotImplementedError
+        raise NotImplementedError(_hook_message(type(self), "pre_physics_step"))
 
     def post_physics_step(self) -> None:
-        raise NotImplementedError
+        raise NotImplementedError(_hook_message(type(self), "post_physics_step"))
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         """Re-initialise the selected envs; the default does nothing (tasks override)."""
 
     def compute_observations(self) -> None:
-        raise NotImplementedError
+        raise NotImplementedError(_hook_message(type(self), "compute_observations"))
+
+    def _check_required_hooks(self) -> None:
+        missing = [name for name in REQUIRED_HOOKS if getattr(type(self), name) is getattr(VecTask, name)]
+        if missing:
+            raise NotImplementedError("; ".join(_hook_message(type(self), name) for name in missing))
+
+    def check_action_size(self) -> None:
+        """``env.numActions`` must equal the model's actuator count (``ctrl`` columns), checked at construction.
+
+        A task whose actions do not map one to one onto actuators overrides this with its own check.
+        """
+        nu = self.sim.num_actuators
+        if nu == 0:
+            raise ValueError(
+                f"{type(self).__name__}: env.numActions={self.num_actions} but the model has no actuators: give the "
+                "asset's joints a drive (env.control.driveMode / defaultDriveMode) or use an MJCF with <actuator>"
+            )
+        if nu != self.num_actions:
+            listing = [f"{a} -> {j}" for a, j in zip(self.sim.actuator_names, self.sim.actuator_joints)]
+            raise ValueError(
+                f"{type(self).__name__}: env.numActions={self.num_actions} but the model has {nu} actuators "
+                f"(ctrl columns, name -> joint: {listing}); set env.numActions: {nu}, or change the drives"
+            )
 
     def observation_terms(self) -> list[ObsTerm] | None:
         """The policy observation as named terms, in column order; None: the task declares no layout."""
@@ -453,6 +533,29 @@ class VecTask:
         if self.viewer is not None:
             self.viewer.close()
             self.viewer = None
+
+
+def _hook_message(cls: type, name: str) -> str:
+    return f"{cls.__name__} must implement {name}(): {REQUIRED_HOOKS[name]}"
+
+
+def joint_drives(control: dict, joints: list[str], owned: dict[str, str]) -> dict[str, JointDrive]:
+    """``env.control`` drive settings per joint. ``defaultDriveMode`` covers the joints the asset does not actuate;
+    a ``driveMode`` entry on a joint the asset's own actuator drives is an error naming the joint."""
+    explicit = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode")
+    clash = {j: owned[j] for j in explicit if j in owned}
+    if clash:
+        raise ValueError(
+            f"env.control.driveMode: joints {sorted(clash)} are already driven by the asset's own actuators "
+            f"({clash}); the asset's actuators are used as written, so remove these driveMode entries"
+        )
+    default_mode = str(control.get("defaultDriveMode", "none"))
+    stiffness = match_joint_values(control.get("stiffness"), joints, "env.control.stiffness", 0.0)
+    damping = match_joint_values(control.get("damping"), joints, "env.control.damping", 0.0)
+    return {
+        j: JointDrive(str(explicit.get(j, default_mode)), float(stiffness[j]), float(damping[j]))
+        for j in joints if j not in owned
+    }
 
 
 def solver_options(sim: dict) -> SolverOptions:
