@@ -11,15 +11,19 @@ plus ``cfg/task/MyTask.yaml`` and ``cfg/train/MyTaskPPO.yaml``.
 
 from __future__ import annotations
 
+from isaacgymenvs_mw.tasks.ant import Ant
 from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
 from isaacgymenvs_mw.tasks.go1 import Go1
+from isaacgymenvs_mw.tasks.humanoid import Humanoid
 
 isaacgym_task_map: dict[str, type[VecTask]] = {
+    "Ant": Ant,
     "Anymal": Anymal,
     "Cartpole": Cartpole,
     "Go1": Go1,
+    "Humanoid": Humanoid,
 }
 
 

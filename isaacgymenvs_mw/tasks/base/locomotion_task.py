@@ -1,0 +1,317 @@
+"""Run toward a target far along +x: IsaacGymEnvs' Ant and Humanoid, on MJCF robots that bring their own motors.
+
+The robot starts upright at the origin; a target sits ``env.target`` away (1000 m along x by default), so the
+episode is about running as fast as possible in that direction without falling. The reward is IsaacGymEnvs':
+progress (the drop in the horizontal distance to the target over the step, divided by the policy dt: the speed
+toward the target in m/s) + staying alive + being upright + heading toward the target, minus action, energy and
+joints-at-limit costs; the step on which the torso drops below ``terminationHeight`` earns ``deathCost`` instead
+and ends the episode.
+
+The policy's action i is the command of the MJCF's actuator i (a motor: joint torque = gear × action ×
+``powerScale``); every movable joint must be driven by exactly one of them. The foot forces come from contact
+sensors that the MJCF declares (force and torque, net over each foot's contacts: 6 values per foot).
+
+Where this differs from IsaacGymEnvs, on purpose:
+  * hooks run reward -> reset -> observe (IsaacGymEnvs: reset -> observe -> reward), so the reward of a step is
+    computed from the state that step produced, and the first observation of a new episode is its reset state;
+  * yaw, roll and the angle to the target are wrapped to (-π, π] (IsaacGymEnvs' Ant leaves yaw and roll in [0, 2π),
+    a jump of 2π when the torso turns through the x axis), and the angle to the target is measured in the ground
+    plane (IsaacGymEnvs computes it from the x and z offsets, which makes it minus the yaw);
+  * the joints-at-limit count of the Ant uses |scaled position| (IsaacGymEnvs counts only the upper limit);
+  * the joint forces observed by the Humanoid are the actuator torques (MuJoCo ``qfrc_actuator``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse
+
+# env keys every locomotion task YAML sets (IsaacGymEnvs' names where it has them).
+_SCALAR_KEYS = (
+    "powerScale", "headingWeight", "upWeight", "aliveReward", "actionsCost", "energyCost", "jointsAtLimitCost",
+    "deathCost", "terminationHeight", "dofVelocityScale", "angularVelocityScale", "contactForceScale",
+    "upThreshold", "headingThreshold", "jointsAtLimitThreshold", "rewardScale", "resetDofPosNoise",
+    "resetDofVelNoise",
+)
+
+
+class LocomotionTask(VecTask):
+    """IsaacGymEnvs' locomotion tasks (Ant, Humanoid): the shared observation, reward, termination and reset."""
+
+    # Humanoid: also observe each joint's actuator torque (IsaacGymEnvs' dof force sensors).
+    observe_dof_forces = False
+    # Sensor values per foot in the observation (force and torque).
+    FOOT_SENSOR_DIM = 6
+
+    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
+                 virtual_screen_capture=False, force_render=False):
+        self.cfg = cfg
+        env = cfg["env"]
+        missing = [k for k in _SCALAR_KEYS + ("episodeLength", "target", "footContactSensors") if k not in env]
+        if missing:
+            raise ValueError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
+        self.k = {key: float(env[key]) for key in _SCALAR_KEYS}
+        self.max_episode_length = whole_number(env["episodeLength"], "env.episodeLength", 2)
+        self.record_eval_metrics = False  # evaluate() turns it on: extras["eval_metrics"] gets the forward speed
+        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
+                         virtual_screen_capture, force_render)
+        self._init_joints()
+        self._init_foot_sensors(env["footContactSensors"])
+        self._init_buffers(env)
+        self.build_observation_layouts()
+
+    # ------------------------------------------------------------------ model
+    def _init_joints(self) -> None:
+        """Actuator i drives one joint; limits, motor strengths and the reset pose per joint."""
+        sim, name = self.sim, type(self).__name__
+        if not sim.floating_base:
+            raise ValueError(f"{name}: the robot needs a floating base: set env.asset.fixBaseLink: False")
+        dofs, joints = sim.dof_names, sim.actuator_joints
+        not_motors = [a for a, j in zip(sim.actuator_names, joints) if j is None]
+        if not_motors:
+            raise ValueError(f"{name}: actuators {not_motors} do not drive a joint; each action is one joint's motor")
+        undriven = [d for d in dofs if d not in joints]
+        twice = sorted({j for j in joints if joints.count(j) > 1})
+        if undriven or twice:
+            raise ValueError(
+                f"{name}: every joint needs exactly one motor in the asset's <actuator> section; joints without one: "
+                f"{undriven}, joints with several: {twice} (actuator -> joint: "
+                f"{dict(zip(sim.actuator_names, joints))})"
+            )
+        m, dev = sim.mj_model, self.device
+        joint_ids = [m.joint(d).id for d in dofs]
+        unlimited = [d for d, j in zip(dofs, joint_ids) if not m.jnt_limited[j]]
+        if unlimited:
+            raise ValueError(f"{name}: joints {unlimited} have no range; the observation scales joint positions "
+                             "to [-1, 1] by their limits, so give each joint a range in the MJCF")
+        limits = torch.tensor(m.jnt_range[joint_ids], device=dev, dtype=torch.float)
+        self.dof_lower, self.dof_upper = limits[:, 0], limits[:, 1]
+        # Actuator i's joint, as a column of dof_pos / dof_vel.
+        self.actuated_dof = torch.tensor([dofs.index(j) for j in joints], device=dev, dtype=torch.long)
+        gear = torch.tensor(m.actuator_gear[:, 0], device=dev, dtype=torch.float)
+        # IsaacGymEnvs weighs the energy and joint-limit costs by each motor's share of the strongest one.
+        self.motor_effort_ratio = gear / gear.abs().max()
+        self.dof_effort_ratio = torch.zeros_like(self.dof_lower).scatter(0, self.actuated_dof, self.motor_effort_ratio)
+        # Reset pose: zero, or the nearest limit where zero is outside the range (the Ant's feet).
+        self.initial_dof_pos = torch.clamp(torch.zeros_like(self.dof_lower), self.dof_lower, self.dof_upper)
+
+    def _init_foot_sensors(self, sensors: list[str]) -> None:
+        m = self.sim.mj_model
+        names = [m.sensor(i).name for i in range(m.nsensor)]
+        columns = []
+        for sensor in sensors:
+            if sensor not in names:
+                raise ValueError(f"env.footContactSensors: '{sensor}' is not a sensor of the asset; its sensors: "
+                                 f"{names} (declare <contact body1=... data=\"force torque\"> sensors in the MJCF)")
+            s = m.sensor(sensor)
+            if int(s.dim[0]) != self.FOOT_SENSOR_DIM:
+                raise ValueError(f"env.footContactSensors: sensor '{sensor}' gives {int(s.dim[0])} values, the task "
+                                 f"reads {self.FOOT_SENSOR_DIM} (force and torque: data=\"force torque\")")
+            columns += range(int(s.adr[0]), int(s.adr[0]) + self.FOOT_SENSOR_DIM)
+        self.num_feet = len(sensors)
+        self._foot_columns = torch.tensor(columns, device=self.device, dtype=torch.long)
+
+    def _init_buffers(self, env: dict) -> None:
+        n, dev = self.num_envs, self.device
+        target = [float(v) for v in env["target"]]
+        if len(target) != 3:
+            raise ValueError(f"env.target={target} is invalid: give [x, y, z] (m)")
+        self.targets = torch.tensor(target, device=dev).repeat(n, 1)
+        qpos0 = torch.tensor(self.sim.mj_model.qpos0[:7], device=dev, dtype=torch.float)
+        self.start_pos, self.start_quat = qpos0[:3], qpos0[3:7]  # env.baseInitState, compiled into the model
+        self.inv_start_quat = (self.start_quat * torch.tensor([1.0, -1.0, -1.0, -1.0], device=dev)).repeat(n, 1)
+        self.basis_up = torch.tensor([0.0, 0.0, 1.0], device=dev).repeat(n, 1)
+        self.basis_heading = torch.tensor([1.0, 0.0, 0.0], device=dev).repeat(n, 1)
+        self.actions = torch.zeros(n, self.num_actions, device=dev)
+        # Where each torso was at the previous step (ground plane), and its speed toward the target since then.
+        self.prev_xy = self.start_pos[:2].repeat(n, 1)
+        self.progress_speed = torch.zeros(n, device=dev)
+        # Torso state in the frame of its start orientation, refreshed after each physics step and each reset.
+        self.torso_quat = torch.zeros(n, 4, device=dev)
+        self.vel_loc = torch.zeros(n, 3, device=dev)
+        self.angvel_loc = torch.zeros(n, 3, device=dev)
+        self.up_proj = torch.zeros(n, device=dev)
+        self.heading_proj = torch.zeros(n, device=dev)
+        self.yaw = torch.zeros(n, device=dev)
+        self.roll = torch.zeros(n, device=dev)
+        self.angle_to_target = torch.zeros(n, device=dev)
+        self.reward_names = [name[len("_reward_"):] for name in dir(self) if name.startswith("_reward_")]
+        self.reward_fns = [getattr(self, f"_reward_{name}") for name in self.reward_names]
+        self.episode_sums = torch.zeros(n, len(self.reward_names), device=dev)
+
+    # ------------------------------------------------------------ observation
+    def observation_terms(self) -> list[ObsTerm]:
+        k, n = self.k, self.num_actions
+        terms = [
+            ObsTerm("torso_height", 1),                              # m
+            ObsTerm("lin_vel", 3),                                   # torso frame, m/s
+            ObsTerm("ang_vel", 3, k["angularVelocityScale"]),        # torso frame, rad/s
+            ObsTerm("yaw", 1),                                       # rad, (-π, π]
+            ObsTerm("roll", 1),                                      # rad, (-π, π]
+            ObsTerm("angle_to_target", 1),                           # rad: heading error in the ground plane
+            ObsTerm("up_proj", 1),                                   # torso z axis · world up
+            ObsTerm("heading_proj", 1),                              # torso x axis · direction to the target
+            ObsTerm("dof_pos_scaled", n),                            # joint positions, limits -> ±1
+            ObsTerm("dof_vel", n, k["dofVelocityScale"]),            # rad/s
+        ]
+        if self.observe_dof_forces:
+            terms.append(ObsTerm("dof_force", n, k["contactForceScale"]))  # actuator torque per joint, N m
+        terms += [
+            ObsTerm("foot_forces", self.FOOT_SENSOR_DIM * self.num_feet, k["contactForceScale"]),  # N, N m
+            ObsTerm("actions", n),                                   # the last policy output
+        ]
+        return terms
+
+    def compute_observations(self) -> None:
+        sim = self.sim
+        values = {
+            "torso_height": sim.root_pos[:, 2:3],
+            "lin_vel": self.vel_loc,
+            "ang_vel": self.angvel_loc,
+            "yaw": self.yaw.unsqueeze(1),
+            "roll": self.roll.unsqueeze(1),
+            "angle_to_target": self.angle_to_target.unsqueeze(1),
+            "up_proj": self.up_proj.unsqueeze(1),
+            "heading_proj": self.heading_proj.unsqueeze(1),
+            "dof_pos_scaled": self.dof_pos_scaled(),
+            "dof_vel": sim.dof_vel,
+            "foot_forces": sim.sensordata[:, self._foot_columns],
+            "actions": self.actions,
+        }
+        if self.observe_dof_forces:
+            # A reset keeps the previous step's actuator forces until the next physics step: show none instead.
+            values["dof_force"] = sim.qfrc_actuator[:, 6:] * (self.progress_buf > 0).unsqueeze(1)
+        self.obs_buf[:] = torch.cat([values[t.name] * t.scale for t in self.obs_layout.terms], dim=-1)
+
+    def dof_pos_scaled(self) -> torch.Tensor:
+        """Joint positions mapped linearly from [lower, upper] to [-1, 1] (IsaacGymEnvs' ``unscale``)."""
+        return (2.0 * self.sim.dof_pos - self.dof_upper - self.dof_lower) / (self.dof_upper - self.dof_lower)
+
+    def _refresh_torso_state(self) -> None:
+        """Torso orientation, velocities and heading relative to the target, from qpos / qvel."""
+        sim = self.sim
+        q = _quat_mul(sim.root_quat, self.inv_start_quat)
+        self.torso_quat[:] = q
+        to_target = self.targets - sim.root_pos
+        to_target[:, 2] = 0.0
+        up = quat_rotate(q, self.basis_up)
+        heading = quat_rotate(q, self.basis_heading)
+        self.up_proj[:] = up[:, 2]
+        self.heading_proj[:] = torch.sum(heading * torch.nn.functional.normalize(to_target, dim=-1), dim=-1)
+        self.vel_loc[:] = quat_rotate_inverse(q, sim.root_lin_vel)
+        # MuJoCo gives the free joint's angular velocity in the body frame; IsaacGym in the world frame.
+        self.angvel_loc[:] = quat_rotate_inverse(q, quat_rotate(sim.root_quat, sim.root_ang_vel))
+        w, x, y, z = q.unbind(-1)
+        self.roll[:] = torch.atan2(2.0 * (w * x + y * z), w * w - x * x - y * y + z * z)
+        self.yaw[:] = torch.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+        walk_angle = torch.atan2(to_target[:, 1], to_target[:, 0])
+        diff = walk_angle - self.yaw
+        self.angle_to_target[:] = torch.atan2(torch.sin(diff), torch.cos(diff))
+
+    # --------------------------------------------------------------- stepping
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        self.actions[:] = actions
+        # The motors' gear turns a command into a torque; MuJoCo clamps the command to the actuator's ctrlrange.
+        self.sim.ctrl[:] = actions * self.k["powerScale"]
+
+    def post_physics_step(self) -> None:
+        self.progress_buf += 1
+        self.randomize_buf += 1
+        self._refresh_torso_state()
+        self.progress_speed[:] = self._speed_toward_target()
+        self.prev_xy[:] = self.sim.root_pos[:, :2]
+        self.compute_reward()
+        if self.record_eval_metrics:
+            # Speed of the torso along +x (world frame, m/s), before any reset replaces the state.
+            self.extras["eval_metrics"] = {"forward_speed": self.sim.root_lin_vel[:, 0].clone()}
+        self.reset_idx(self.reset_buf != 0)
+        self._refresh_torso_state()
+        self.compute_observations()
+
+    def _speed_toward_target(self) -> torch.Tensor:
+        """The drop in horizontal distance to the target over the step, / policy dt (IsaacGymEnvs' potential
+        difference). Written as (p - p_prev)·(a + b) / (|a| + |b|) with a, b the offsets to the target before and
+        after, because |a| - |b| of two ~1000 m distances in float32 would round the speed to ~0.5 cm/step."""
+        target = self.targets[:, :2]
+        now, before = self.sim.root_pos[:, :2], self.prev_xy
+        a, b = target - before, target - now
+        drop = torch.sum((now - before) * (a + b), dim=-1) / (torch.norm(a, dim=-1) + torch.norm(b, dim=-1))
+        return drop / self.control_dt
+
+    def compute_reward(self) -> None:
+        terms = torch.stack([fn() for fn in self.reward_fns], dim=1)
+        fallen = self.sim.root_pos[:, 2] < self.k["terminationHeight"]
+        total = torch.where(fallen, torch.full_like(self.rew_buf, self.k["deathCost"]), terms.sum(dim=1))
+        # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it.
+        self.episode_sums += terms * (~fallen).unsqueeze(1)
+        self.rew_buf[:] = total * self.k["rewardScale"]
+        timeout = self.progress_buf >= self.max_episode_length - 1
+        self.reset_buf[:] = (fallen | timeout).long()
+
+    def reset_idx(self, env_ids: torch.Tensor) -> None:
+        mask = self.env_mask(env_ids)
+        n, nd, dev = self.num_envs, self.sim.num_dof, self.device
+        noise_pos, noise_vel = self.k["resetDofPosNoise"], self.k["resetDofVelNoise"]
+        dof_pos = self.initial_dof_pos + noise_pos * (2.0 * torch.rand(n, nd, device=dev) - 1.0)
+        dof_pos = torch.clamp(dof_pos, self.dof_lower, self.dof_upper)
+        dof_vel = noise_vel * (2.0 * torch.rand(n, nd, device=dev) - 1.0)
+        # The torso goes back to the model's start pose (qpos0: env.baseInitState), at rest.
+        self.sim.reset_worlds(mask)
+        self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=dof_vel, refresh=False)  # observations read qpos/qvel
+        self.prev_xy.copy_(torch.where(mask.unsqueeze(1), self.start_pos[:2], self.prev_xy))
+        self.actions.masked_fill_(mask.unsqueeze(1), 0.0)
+        self.progress_buf.masked_fill_(mask, 0)
+        # The finished episodes' per-term sums (summed over envs; the learner divides by the episode count).
+        finished = (self.episode_sums * mask.unsqueeze(1)).sum(dim=0)
+        self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
+        self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
+
+    # ------------------------------------------------------------ reward terms
+    # Each returns its contribution to the step's reward (sign and weight included), before rewardScale.
+    def _reward_progress(self) -> torch.Tensor:
+        # rewards moving toward the target: the drop in horizontal distance over the step / policy dt (m/s)
+        return self.progress_speed
+
+    def _reward_alive(self) -> torch.Tensor:
+        # rewards every step the torso stays above the termination height
+        return torch.full_like(self.progress_speed, self.k["aliveReward"])
+
+    def _reward_upright(self) -> torch.Tensor:
+        # rewards an upright torso: upWeight while its up axis is within acos(upThreshold) of vertical
+        return (self.up_proj > self.k["upThreshold"]).float() * self.k["upWeight"]
+
+    def _reward_heading(self) -> torch.Tensor:
+        # rewards facing the target: headingWeight above headingThreshold, proportionally less below it
+        w, thr = self.k["headingWeight"], self.k["headingThreshold"]
+        return torch.where(self.heading_proj > thr, torch.full_like(self.heading_proj, w), w * self.heading_proj / thr)
+
+    def _reward_action_cost(self) -> torch.Tensor:
+        # penalises large commands: actionsCost × Σ a²
+        return -self.k["actionsCost"] * torch.sum(self.actions ** 2, dim=-1)
+
+    def _reward_energy_cost(self) -> torch.Tensor:
+        # penalises mechanical power: energyCost × Σ |a × scaled joint velocity| × motor strength share
+        vel = self.sim.dof_vel[:, self.actuated_dof] * self.k["dofVelocityScale"]
+        return -self.k["energyCost"] * torch.sum(torch.abs(self.actions * vel) * self.motor_effort_ratio, dim=-1)
+
+    def _reward_joints_at_limit(self) -> torch.Tensor:
+        # penalises joints pressed to their limits: jointsAtLimitCost per joint with |scaled position| > threshold
+        at_limit = torch.abs(self.dof_pos_scaled()) > self.k["jointsAtLimitThreshold"]
+        return -self.k["jointsAtLimitCost"] * torch.sum(at_limit.float(), dim=-1)
+
+
+def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of (w, x, y, z) quaternions, batched."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack((
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ), dim=-1)
+
