@@ -29,6 +29,7 @@ setup(
     packages=find_packages(include=["isaacgymenvs_mw", "isaacgymenvs_mw.*"]),
     python_requires=">=3.10,<3.13",
     install_requires=INSTALL_REQUIRES,
-    extras_require={"test": ["pytest>=7", "onnxruntime>=1.17"]},  # onnxruntime: the exported-policy test
+    # onnxruntime: the exported-policy test; matplotlib: benchmarks/learning_curve.py (and its test)
+    extras_require={"test": ["pytest>=7", "onnxruntime>=1.17", "matplotlib>=3.7"], "plot": ["matplotlib>=3.7"]},
     license="BSD-3-Clause",
 )

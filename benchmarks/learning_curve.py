@@ -1,0 +1,84 @@
+"""Learning curve as a PNG: mean episode reward (and, with --length, episode length) against wall-clock training
+time, read from the ``history`` of one or more runs' ``summary.json``.
+
+Each history record is one training iteration (``time_s``: cumulative collection + update time of the run;
+``mean_episode_reward``: episodes that ended in that iteration, absent when none did). The x axis is that training
+time, not the process wall time: start-up (kernel compilation, model build) is reported in the title from
+``wall_time_s - train_time_s`` of the first run.
+
+  python benchmarks/learning_curve.py runs/Humanoid/<stamp>/summary.json --out docs/humanoid_learning_curve.png
+  python benchmarks/learning_curve.py runs/Ant/*/summary.json --labels seed42 seed7 --out docs/ant_curve.png
+
+Needs matplotlib (``pip install -e ".[plot]"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def curve(summary: dict, key: str) -> tuple[list[float], list[float]]:
+    """(training time s, value) for every iteration that reported ``key``."""
+    xs, ys = [], []
+    for record in summary.get("history", []):
+        if record.get(key) is not None:
+            xs.append(float(record["time_s"]))
+            ys.append(float(record[key]))
+    return xs, ys
+
+
+def plot(summaries: list[dict], labels: list[str], out: Path, with_length: bool) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no display
+    import matplotlib.pyplot as plt
+
+    rows = 2 if with_length else 1
+    fig, axes = plt.subplots(rows, 1, figsize=(7, 3.2 * rows), sharex=True, squeeze=False)
+    for summary, label in zip(summaries, labels):
+        for ax, key in zip(axes[:, 0], ("mean_episode_reward", "mean_episode_length")):
+            xs, ys = curve(summary, key)
+            ax.plot(xs, ys, label=label, linewidth=1.5)
+    axes[0, 0].set_ylabel("mean episode reward")
+    if with_length:
+        axes[1, 0].set_ylabel("mean episode length (steps)")
+    axes[-1, 0].set_xlabel("training time (s): rollouts + updates")
+    first = summaries[0]
+    startup = float(first.get("wall_time_s", 0.0)) - float(first.get("train_time_s", 0.0))
+    title = (f"{first.get('task', '?')}: {first.get('num_envs', '?')} envs on {first.get('device', '?')}; "
+             f"start-up {startup:.0f} s before the first iteration")
+    axes[0, 0].set_title(title, fontsize=9)
+    for ax in axes[:, 0]:
+        ax.grid(True, alpha=0.3)
+    if len(summaries) > 1:
+        axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("summaries", nargs="+", type=Path, help="summary.json files written by train.py")
+    parser.add_argument("--out", type=Path, required=True, help="PNG to write")
+    parser.add_argument("--labels", nargs="*", help="one legend label per summary (default: its run folder)")
+    parser.add_argument("--length", action="store_true", help="add a panel with the mean episode length")
+    args = parser.parse_args()
+    labels = args.labels or [p.parent.name for p in args.summaries]
+    if len(labels) != len(args.summaries):
+        parser.error(f"--labels gives {len(labels)} labels for {len(args.summaries)} summaries")
+    summaries = []
+    for path in args.summaries:
+        data = json.loads(path.read_text())
+        if not any(r.get("mean_episode_reward") is not None for r in data.get("history", [])):
+            parser.error(f"{path}: its history has no iteration with a finished episode; nothing to plot")
+        summaries.append(data)
+    plot(summaries, labels, args.out, args.length)
+    print(json.dumps({"png": str(args.out), "runs": len(summaries)}))
+
+
+if __name__ == "__main__":
+    main()
