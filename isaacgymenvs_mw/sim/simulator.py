@@ -50,6 +50,10 @@ class Simulator:
         nconmax: contacts per world (pooled over worlds by MuJoCo Warp).
         njmax: constraint rows per world.
         per_world_fields: Model fields given one value per world (domain randomisation), e.g. "geom_friction".
+        use_graphs: capture the physics as CUDA graphs (None: on CUDA devices).
+        deterministic: MuJoCo Warp's ``opt.deterministic`` (all ``DeterminismType`` bits): floating-point atomic
+            sums in a fixed order, so that the same inputs on the same GPU give the same bits (see docs/config.md,
+            ``deterministic``). Costs speed on GPU; the CPU device runs kernels serially either way.
     """
 
     def __init__(
@@ -62,6 +66,7 @@ class Simulator:
         njmax: int | None = None,
         per_world_fields: Sequence[str] = (),
         use_graphs: bool | None = None,
+        deterministic: bool = False,
     ) -> None:
         if num_worlds < 1:
             raise ValueError(f"numEnvs must be >= 1, got {num_worlds}")
@@ -81,6 +86,8 @@ class Simulator:
             self.model = mjw.put_model(mj_model, batch_sizes={f: self.num_worlds for f in per_world_fields})
             # Device printf per world per step would serialise the GPU; we poll d.overflow instead.
             self.model.opt.warn_overflow = 0
+            # Set before anything is compiled or captured: the bits select the kernels (Warp module options).
+            self.model.opt.deterministic = int(mjw.DeterminismType.ALL if deterministic else mjw.DeterminismType.NONE)
             self.data = mjw.make_data(mj_model, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
 
         self._bind_views()
@@ -138,6 +145,11 @@ class Simulator:
     @property
     def num_dof(self) -> int:
         return self.dof_pos.shape[1]
+
+    @property
+    def deterministic(self) -> bool:
+        """Whether MuJoCo Warp runs in its deterministic mode (``opt.deterministic``)."""
+        return bool(self.model.opt.deterministic)
 
     @property
     def dt(self) -> float:
@@ -260,6 +272,26 @@ class Simulator:
         with wp.ScopedDevice(self.wp_device):
             mjw.set_const(self.model, self.data)
         self.recapture()
+
+    def joint_pd_gains(self) -> dict[str, tuple[float, float]]:
+        """{joint: (stiffness, damping)} of the joints driven by position actuators (MuJoCo's kp and kv)."""
+        m, out = self.mj_model, {}
+        for a in range(m.nu):
+            is_joint = int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+            # A position actuator: force = kp * ctrl - kp * q - kv * qdot (gain kp, bias (0, -kp, -kv)).
+            is_position = float(m.actuator_gainprm[a, 0]) != 0.0 and float(m.actuator_biasprm[a, 1]) != 0.0
+            if is_joint and is_position:
+                name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))
+                out[name] = (float(m.actuator_gainprm[a, 0]), -float(m.actuator_biasprm[a, 2]))
+        return out
+
+    def save_model(self, path: str) -> None:
+        """Write the compiled host model (nominal values, no per-world randomisation) as MuJoCo's binary ``.mjb``.
+
+        ``mujoco.MjModel.from_binary_path`` loads it back, with the same MuJoCo version, as the very model that was
+        trained on: actuators (PD gains), solver options, contact sensors and the floor included.
+        """
+        mujoco.mj_saveModel(self.mj_model, str(path), None)
 
     def geom_id(self, name: str) -> int:
         gid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)

@@ -186,6 +186,25 @@ class LeggedTask(VecTask):
             ObsTerm("feet_contact", len(self.feet)),  # 1 where the foot's contact force exceeds 1 N
         ]
 
+    def deployment_info(self) -> dict:
+        info = super().deployment_info()
+        gains = self.sim.joint_pd_gains()
+        names = self.sim.dof_names
+        info.update(
+            joint_names=names,  # action i drives joint_names[i]
+            default_joint_pos=self.default_dof_pos.tolist(),
+            action_scale=self.action_scale,
+            action_to_target="target = default_joint_pos + action_scale * clip(action, +-clip_actions)",
+            stiffness=[gains[n][0] if n in gains else 0.0 for n in names],
+            damping=[gains[n][1] if n in gains else 0.0 for n in names],
+            commands_scale=self.commands_scale.tolist(),  # the `commands` term: (vx, vy, yaw rate) times this
+            command_ranges={"lin_vel_x": self.command_ranges[0].tolist(), "lin_vel_y": self.command_ranges[1].tolist(),
+                            "yaw_rate": self.command_ranges[2].tolist()},
+            base_init_pos=self.base_init_pos[0].tolist(),
+            base_init_quat=self.base_init_quat[0].tolist(),
+        )
+        return info
+
     # --------------------------------------------------------------- stepping
     def pre_physics_step(self, actions: torch.Tensor) -> None:
         self.actions[:] = actions

@@ -36,6 +36,7 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
@@ -74,6 +75,12 @@ class VecTask:
         self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
         self.clip_obs = _positive(env, "clipObservations", math.inf)
         self.clip_actions = _positive(env, "clipActions", math.inf)
+        self.history_specs = parse_history(env)
+        if "critic" in self.history_specs and self.num_states == 0:
+            raise ValueError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
+                             "policy observation, history included (env.history.policy)")
+        self.obs_history: ObsHistory | None = None
+        self.state_history: ObsHistory | None = None
 
         self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
         self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
@@ -98,6 +105,8 @@ class VecTask:
         self.obs_dict: dict[str, torch.Tensor] = {}
         self.obs_layout: ObsLayout | None = None
         self.state_layout: ObsLayout | None = None
+        self._layouts_built = False
+        self._build_history()  # a whole-vector history has its size now; a selection of terms waits for the layout
 
     # --------------------------------------------------------------- building
     def create_sim(self) -> None:
@@ -142,6 +151,7 @@ class VecTask:
             njmax=sim.get("njmax"),
             per_world_fields=per_world_fields,
             use_graphs=sim.get("useGraphs"),
+            deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
         )
 
     def asset_path(self, asset_cfg: dict) -> Path:
@@ -263,6 +273,49 @@ class VecTask:
         if terms is not None:
             self.state_layout = ObsLayout(terms)
             self.state_layout.check(self.num_states, "env.numStates")
+        self._layouts_built = True
+        self._build_history()
+
+    def _build_history(self) -> None:
+        """``env.history``: stacked policy/critic inputs; the spaces (and so the networks) take the stacked sizes."""
+        n, dev = self.num_envs, self.device
+        ready = lambda spec: spec is not None and (spec.terms is None or self._layouts_built)  # noqa: E731
+        spec = self.history_specs.get("policy")
+        if ready(spec) and self.obs_history is None:
+            self.obs_history = ObsHistory(spec, self.num_obs, self.obs_layout, n, dev)
+            self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_history.size,), dtype=np.float32)
+        spec = self.history_specs.get("critic")
+        if ready(spec) and self.state_history is None:
+            self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
+            self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
+
+    def deployment_info(self) -> dict[str, Any]:
+        """What a runtime needs to feed an exported policy and apply its actions (``learning/export.py`` adds the
+        versions). Tasks with joints add their joint names, default pose, action scale and PD gains."""
+        if not self._layouts_built:
+            self.build_observation_layouts()
+
+        def finite(x: float) -> float | None:  # JSON has no inf: "no clipping" is null
+            return x if math.isfinite(x) else None
+
+        def group(layout: ObsLayout | None, size: int, history: ObsHistory | None) -> dict[str, Any]:
+            return {"size": size if history is None else history.size, "frame_size": size,
+                    "terms": layout.describe() if layout is not None else None,
+                    "history": history.describe() if history is not None else {"length": 1}}
+
+        info: dict[str, Any] = {
+            "task": type(self).__name__,
+            "control_dt": self.control_dt,
+            "physics_dt": self.dt,
+            "decimation": self.control_freq_inv,
+            "num_actions": self.num_actions,
+            "clip_actions": finite(self.clip_actions),
+            "clip_observations": finite(self.clip_obs),
+            "observation": group(self.obs_layout, self.num_obs, self.obs_history),
+        }
+        if self.num_states > 0:
+            info["state"] = group(self.state_layout, self.num_states, self.state_history)
+        return info
 
     # ---------------------------------------------------------------- contract
     def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
@@ -292,9 +345,11 @@ class VecTask:
         self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
         self.extras["nonfinite_resets"] = self._nonfinite_buf
         # The next step rewrites the output buffers in place while the learner still holds this observation.
-        self.obs_dict["obs"] = self._obs_out.to(self.rl_device, copy=True)
+        obs = self._obs_out if self.obs_history is None else self.obs_history.out
+        self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
         if self.num_states > 0:
-            self.obs_dict["states"] = self._states_out.to(self.rl_device, copy=True)
+            states = self._states_out if self.state_history is None else self.state_history.out
+            self.obs_dict["states"] = states.to(self.rl_device, copy=True)
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
@@ -328,6 +383,11 @@ class VecTask:
         torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs, out=self._obs_out)
         if self.num_states > 0:
             torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs, out=self._states_out)
+        # env.history: an env reset in this step returned its new episode's first frame (reset_buf set).
+        if self.obs_history is not None:
+            self.obs_history.push(self._obs_out, self.reset_buf != 0)
+        if self.state_history is not None:
+            self.state_history.push(self._states_out, self.reset_buf != 0)
 
     @property
     def step_execution(self) -> str:
@@ -383,6 +443,9 @@ class VecTask:
         self._step_graphs = (before, after)
 
     def get_state(self) -> torch.Tensor:
+        """The critic's input as the last step returned it (stacked when ``env.history.critic`` is set)."""
+        if self.state_history is not None:
+            return self.state_history.out.to(self.rl_device, copy=True)
         return torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
 
     def zero_actions(self) -> torch.Tensor:
@@ -390,23 +453,30 @@ class VecTask:
 
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
-        if self.obs_layout is None and self.state_layout is None:
+        if not self._layouts_built:
             self.build_observation_layouts()
         self.reset_idx(self._all_envs)
         self._compute_checked_observations()
-        return self._clamped_obs_dict()
+        return self._clamped_obs_dict(self._all_envs)
 
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
         self.reset_idx(done)
         self.compute_observations()
-        return self._clamped_obs_dict(), done.nonzero(as_tuple=False).flatten()
+        return self._clamped_obs_dict(done), done.nonzero(as_tuple=False).flatten()
 
-    def _clamped_obs_dict(self) -> dict[str, torch.Tensor]:
-        self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
+    def _clamped_obs_dict(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The current observations, clamped; with ``env.history`` the ``new_episode`` envs' past is refilled."""
+        obs = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs)
+        if self.obs_history is not None:
+            obs = self.obs_history.reset(obs, new_episode)
+        self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
         if self.num_states > 0:
-            self.obs_dict["states"] = self.get_state()
+            states = torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs)
+            if self.state_history is not None:
+                states = self.state_history.reset(states, new_episode)
+            self.obs_dict["states"] = states.to(self.rl_device, copy=True)
         return self.obs_dict
 
     def _compute_checked_observations(self) -> None:
