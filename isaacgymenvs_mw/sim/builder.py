@@ -109,7 +109,7 @@ def match_joint_values(
     patterns = dict(patterns or {})
     resolved: dict[str, object] = {}
     for pattern in patterns:
-        name_matches(pattern, joint_names, key, "joint")
+        name_matches(pattern, joint_names, key, "joints")
     for name in joint_names:
         if name in patterns:
             resolved[name] = patterns[name]
@@ -124,7 +124,7 @@ def match_joint_values(
     return resolved
 
 
-def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> list[int]:
+def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> list[int]:  # kind: "joints", ...
     """Indices of the names ``pattern`` selects: the one of that exact name, or else every name in which it is
     found as a regular expression (the rule of ``match_joint_values``). Selecting nothing is an error naming ``key``.
     """
@@ -135,7 +135,8 @@ def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> lis
     except re.error as err:
         raise ValueError(f"{key}: '{pattern}' is not a valid regular expression ({err})") from None
     if not hits:
-        raise ValueError(f"{key}: '{pattern}' matches no {kind}. {kind.capitalize()}s of this asset: {list(names)}")
+        singular = {"bodies": "body"}.get(kind, kind[:-1])
+        raise ValueError(f"{key}: '{pattern}' matches no {singular}. {kind.capitalize()} of this asset: {list(names)}")
     return hits
 
 

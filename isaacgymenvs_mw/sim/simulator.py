@@ -104,6 +104,7 @@ class Simulator:
         self.ctrl = wp.to_torch(d.ctrl)
         self.qacc = wp.to_torch(d.qacc)
         self.qfrc_actuator = wp.to_torch(d.qfrc_actuator)
+        self.actuator_force = wp.to_torch(d.actuator_force)  # per actuator, after its force range
         self.xpos = wp.to_torch(d.xpos)
         self.xquat = wp.to_torch(d.xquat)
         self.sensordata = wp.to_torch(d.sensordata)

@@ -327,7 +327,7 @@ class Randomizer:
         else:
             chosen = []
             for pattern in patterns:
-                chosen += [i for i in name_matches(pattern, names, f"{key}.{kind}", kind[:-1]) if i not in chosen]
+                chosen += [i for i in name_matches(pattern, names, f"{key}.{kind}", kind) if i not in chosen]
         element = [ids[i] for i in chosen]
         if kind == "bodies" and quantity.selects == "geoms":
             element = [g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in element]
@@ -430,7 +430,7 @@ class Randomizer:
         self._draw_params(mask, "reset")
         if self.max_delay:
             self.action_history.masked_fill_(mask.view(1, -1, 1), 0.0)
-            if self.delay_spec.apply == "reset":
+            if self.delay_spec is not None and self.delay_spec.apply == "reset":
                 self._draw_delay(mask)
 
     def before_physics(self, progress: torch.Tensor) -> None:
