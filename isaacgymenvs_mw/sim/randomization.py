@@ -100,12 +100,14 @@ class InertiaConstants:
         mass_matrix = (torch.einsum("wb,wbia,wbja->wij", mass, jac_lin, jac_lin)
                        + torch.einsum("bia,wbac,bjc->wij", jac_ang, inertia_world, jac_ang)
                        + torch.diag_embed(armature))
-        # cholesky_ex: no error check, so no host sync (a step that captures this must not wait on the GPU).
+        # M = L L^T, so x^T M^-1 x = |L^-1 x|^2. cholesky_ex and the triangular solve check no error flags: no host
+        # sync, so a captured step can hold them.
         factor, _ = torch.linalg.cholesky_ex(mass_matrix)
-        inverse = torch.cholesky_inverse(factor)
-        dof_invweight0 = torch.diagonal(inverse, dim1=1, dim2=2) @ self.average
-        trans = torch.einsum("wbia,wij,wbja->wb", jac_lin, inverse, jac_lin) / 3.0
-        rot = torch.einsum("bia,wij,bja->wb", jac_ang, inverse, jac_ang) / 3.0
+        eye = torch.eye(factor.shape[-1], dtype=factor.dtype, device=factor.device).expand_as(factor)
+        inv_factor = torch.linalg.solve_triangular(factor, eye, upper=False)                       # (W, nv, nv)
+        dof_invweight0 = torch.square(inv_factor).sum(dim=1) @ self.average
+        trans = torch.square(torch.einsum("wij,wbja->wbai", inv_factor, jac_lin)).sum(dim=(2, 3)) / 3.0
+        rot = torch.square(torch.einsum("wij,bja->wbai", inv_factor, jac_ang)).sum(dim=(2, 3)) / 3.0
         # MuJoCo's fallback for a body that cannot translate or cannot rotate: use the other component.
         tiny = mujoco.mjMINVAL
         trans, rot = (torch.where((trans < tiny) & (rot > tiny), rot, trans),
