@@ -142,6 +142,9 @@ class VecTask:
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         sim = self.cfg.get("sim", {})
+        # The randomised quantities' fields, and the force ranges a torque-speed limit rewrites, are per world.
+        fields = tuple(per_world_fields) + self.randomizer.per_world_fields()
+        fields += ("actuator_forcerange",) if getattr(self, "_torque_speed", None) else ()
         return Simulator(
             build_model(request),
             num_worlds=self.num_environments,
@@ -149,8 +152,7 @@ class VecTask:
             substeps=self.control_freq_inv,
             nconmax=sim.get("nconmax"),
             njmax=sim.get("njmax"),
-            per_world_fields=tuple(dict.fromkeys(tuple(per_world_fields) + self.randomizer.per_world_fields()
-                                                 + (("actuator_forcerange",) if getattr(self, "_torque_speed", None) else ()))),
+            per_world_fields=tuple(dict.fromkeys(fields)),
             use_graphs=sim.get("useGraphs"),
         )
 
