@@ -31,7 +31,7 @@ import deploy_mujoco  # noqa: E402
 
 HISTORY = ["dof_vel", "actions"]
 OVERRIDES = [
-    "task.env.randomization.observationNoise.enabled=False",  # the deployed observation is noiseless
+    "task.task.randomize=False",  # the deployed observation is noiseless (and the model nominal)
     f"+task.env.history={{policy:{{length:3,terms:[{','.join(HISTORY)}]}}}}",
 ]
 GO1_YAML = OmegaConf.load(REPO_ROOT / "cfg" / "task" / "Go1.yaml")
