@@ -13,7 +13,8 @@ from conftest import REPO_ROOT
 DOCS = REPO_ROOT / "docs" / "config.md"
 YAML_FILES = sorted((REPO_ROOT / "cfg").rglob("*.yaml"))
 # Mappings whose keys are the user's choice (joint names or patterns), not configuration keys.
-USER_KEYED = {"defaultJointAngles", "driveMode", "stiffness", "damping", "armature", "jointDamping"}
+USER_KEYED = {"defaultJointAngles", "driveMode", "stiffness", "damping", "armature", "jointDamping", "effortLimit",
+              "gear", "ctrlRange"}
 
 
 def key_paths(node: DictConfig, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:

@@ -38,12 +38,15 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     match_body_names,
     match_joint_values,
     movable_joint_names,
+    name_matches,
 )
+from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 
 __all__ = [
     "DRIVE_MODES",
     "GroundPlane",
+    "InertiaConstants",
     "JointDrive",
     "ModelRequest",
     "SolverOptions",
@@ -54,5 +57,7 @@ __all__ = [
     "load_spec",
     "match_body_names",
     "match_joint_values",
+    "model_names",
     "movable_joint_names",
+    "name_matches",
 ]
