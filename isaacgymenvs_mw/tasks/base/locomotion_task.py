@@ -235,7 +235,7 @@ class LocomotionTask(VecTask):
     def _speed_toward_target(self) -> torch.Tensor:
         """The drop in horizontal distance to the target over the step, / policy dt (IsaacGymEnvs' potential
         difference). Written as (p - p_prev)·(a + b) / (|a| + |b|) with a, b the offsets to the target before and
-        after, because |a| - |b| of two ~1000 m distances in float32 would round the speed to ~0.5 cm/step."""
+        after: |a| - |b| of two ~1000 m distances in float32 is rounded to 6e-5 m, 0.004 m/s at 60 Hz."""
         target = self.targets[:, :2]
         now, before = self.sim.root_pos[:, :2], self.prev_xy
         a, b = target - before, target - now
