@@ -53,6 +53,13 @@ def task_of(request, name):
     return request.getfixturevalue(name.lower())
 
 
+def reset_with_reference(request, name, seed: int):
+    """The module's task, reset, with its numpy reference and a seeded action generator."""
+    task = task_of(request, name)
+    task.reset()
+    return task, Reference(task), torch.Generator().manual_seed(seed)
+
+
 # ------------------------------------------------------------------------------------------ reference helpers
 def rotation(q: np.ndarray) -> np.ndarray:
     """World-from-body rotation matrix of a (w, x, y, z) quaternion, by MuJoCo C."""
@@ -190,10 +197,7 @@ def test_actions_become_motor_commands(request, name):
 # --------------------------------------------------------------------------------------------- observation
 @pytest.mark.parametrize("name", ["Ant", "Humanoid"])
 def test_observation_terms_match_a_numpy_reference(request, name):
-    task = task_of(request, name)
-    ref = Reference(task)
-    task.reset()
-    gen = torch.Generator().manual_seed(1)
+    task, ref, gen = reset_with_reference(request, name, seed=1)
     for _ in range(6):
         actions = torch.rand(task.num_envs, task.num_actions, generator=gen) * 2 - 1
         obs, _, reset, _ = task.step(actions)
@@ -215,16 +219,14 @@ def test_observation_terms_match_a_numpy_reference(request, name):
 # ------------------------------------------------------------------------------------------------- reward
 @pytest.mark.parametrize("name", ["Ant", "Humanoid"])
 def test_reward_matches_the_ige_formula_in_numpy(request, name):
-    task = task_of(request, name)
-    ref = Reference(task)
-    task.reset()
-    gen = torch.Generator().manual_seed(2)
-    compared = 0
+    task, ref, gen = reset_with_reference(request, name, seed=2)
+    compared, at_limit = 0, False
     for step in range(8):
         before = state(task)[0]
         # large actions push joints to their limits, so the joints-at-limit term is exercised too
         actions = (torch.rand(task.num_envs, task.num_actions, generator=gen) * 2 - 1) * 1.5
         _, rew, reset, _ = task.step(actions)
+        at_limit |= bool((task._reward_joints_at_limit()[reset == 0] != 0).any())
         qpos, qvel, _, _ = state(task)
         for i in range(task.num_envs):
             if reset[i]:
@@ -235,6 +237,7 @@ def test_reward_matches_the_ige_formula_in_numpy(request, name):
             assert float(rew[i]) == pytest.approx(expected, rel=1e-4, abs=1e-5), f"{name} step {step} env {i}"
             compared += 1
     assert compared >= task.num_envs * 4
+    assert at_limit  # the joints-at-limit term took part in the comparison
 
 
 @pytest.mark.parametrize("name", ["Ant", "Humanoid"])

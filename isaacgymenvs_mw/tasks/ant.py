@@ -1,4 +1,5 @@
-"""Ant: IsaacGymEnvs' four-legged runner (assets/mjcf/ant.xml, its own gear-15 motors); settings in cfg/task/Ant.yaml."""
+"""Ant: IsaacGymEnvs' four-legged runner (assets/mjcf/ant.xml, its own gear-15 motors); settings in
+cfg/task/Ant.yaml."""
 
 from isaacgymenvs_mw.tasks.base.locomotion_task import LocomotionTask
 
