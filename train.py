@@ -3,6 +3,8 @@
 python train.py task=Cartpole test=True checkpoint=runs/Cartpole/<stamp>/model_60.pt   evaluates a policy.
 """
 
+import signal
+import sys
 import time
 
 _STARTED_AT = time.perf_counter()
@@ -17,7 +19,12 @@ import isaacgymenvs_mw.utils.config  # noqa: E402,F401  (registers the YAML reso
 def main(cfg: DictConfig) -> None:
     from isaacgymenvs_mw.learning.launch import run
 
-    run(cfg, started_at=_STARTED_AT)
+    try:
+        run(cfg, started_at=_STARTED_AT)
+    except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: the run saved its checkpoint and summary
+        signum = int(getattr(err, "signum", signal.SIGINT))
+        print(f"[train] stopped by {signal.Signals(signum).name}", file=sys.stderr, flush=True)
+        sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 
 __all__ = [
@@ -49,4 +50,5 @@ __all__ = [
     "load_spec",
     "match_joint_values",
     "movable_joint_names",
+    "set_verbose",
 ]
