@@ -7,7 +7,10 @@ SyncFreePPO, every mini-batch step of the PPO update (forward, backward, learnin
 host work (overflow poll every `sim.overflowCheckInterval` steps, episode statistics and the update's loss read
 once per iteration) is outside that window by construction. Prints one JSON line; exits 1 on a sync.
 
-  python benchmarks/check_no_sync.py --task Anymal --num_envs 4096
+  python benchmarks/check_no_sync.py --task Anymal --num_envs 4096 [--randomization full]
+
+``--randomization full`` (benchmarks/randomization_presets.py) checks the step with every randomised quantity drawn
+at each reset, an action delay, noise, pushes and the torque-speed limit.
 """
 
 from __future__ import annotations
@@ -23,14 +26,15 @@ from isaacgymenvs_mw.learning.launch import build_task
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
+from randomization_presets import apply as apply_randomization
 
 
-def check(task_name: str, num_envs: int, steps: int) -> dict:
+def check(task_name: str, num_envs: int, steps: int, randomization: str = "shipped") -> dict:
     if not torch.cuda.is_available():
         raise SystemExit("check_no_sync.py needs a CUDA GPU (sync debug mode is a CUDA feature)")
     cfg = compose_config([f"task={task_name}", f"num_envs={num_envs}", "sim_device=cuda:0", "rl_device=cuda:0",
                           "headless=True"])
-    task = build_task(cfg)
+    task = build_task(apply_randomization(cfg, randomization))
     env = RslRlVecEnv(task)
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
@@ -41,7 +45,7 @@ def check(task_name: str, num_envs: int, steps: int) -> dict:
     env.stats.pop()
     # Keep the window between two periodic host checks.
     steps = min(steps, task.overflow_check_interval - 1 - task.control_steps % task.overflow_check_interval)
-    result = {"task": task_name, "num_envs": num_envs, "vectask_steps": steps,
+    result = {"task": task_name, "num_envs": num_envs, "randomization": randomization, "vectask_steps": steps,
               "rollout_steps": train_cfg["num_steps_per_env"], "ok": False}
     try:
         torch.cuda.synchronize()
@@ -73,8 +77,9 @@ def main() -> None:
     parser.add_argument("--task", default="Anymal")
     parser.add_argument("--num_envs", type=int, default=4096)
     parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--randomization", default="shipped", help="off, shipped or full")
     args = parser.parse_args()
-    result = check(args.task, args.num_envs, args.steps)
+    result = check(args.task, args.num_envs, args.steps, args.randomization)
     print(json.dumps(result), flush=True)
     sys.exit(0 if result["ok"] else 1)
 

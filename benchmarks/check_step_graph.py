@@ -6,7 +6,11 @@ noise, pushes or randomisation, same commands), drives both with the same action
 step by step (observations are reported: they drift apart because GPU contact physics is not bit-deterministic).
 Prints one JSON line; exits 1 on a mismatch.
 
-  python benchmarks/check_step_graph.py --task Go1 --num_envs 1024 --steps 60
+  python benchmarks/check_step_graph.py --task Go1 --num_envs 1024 --steps 60 [--randomization fixed]
+
+``--randomization fixed`` (benchmarks/randomization_presets.py) runs both with every randomised quantity drawn at
+each reset as a single value, a one-step action delay and the torque-speed limit: the same numbers for both
+whatever their random streams, with the layer's writes, inertia constants and delay buffer inside the graphs.
 """
 
 from __future__ import annotations
@@ -19,12 +23,9 @@ import torch
 
 from isaacgymenvs_mw.learning.launch import build_task
 from isaacgymenvs_mw.utils.config import compose_config
+from randomization_presets import apply as apply_randomization
 
 DETERMINISTIC = [
-    "task.env.randomization.pushRobots=False",
-    "task.env.randomization.observationNoise.enabled=False",
-    "task.env.randomization.frictionRange=[1.0,1.0]",
-    "task.env.randomization.addedMassRange=[0.0,0.0]",
     "task.env.resetDofPosScale=[1.0,1.0]",
     "task.env.resetRootVelocityRange=0.0",
 ]
@@ -35,11 +36,14 @@ def main() -> None:
     parser.add_argument("--task", default="Go1")
     parser.add_argument("--num_envs", type=int, default=1024)
     parser.add_argument("--steps", type=int, default=60)
+    parser.add_argument("--randomization", default="off", help="off (no randomisation) or fixed")
     args = parser.parse_args()
     base = [f"task={args.task}", f"num_envs={args.num_envs}", "sim_device=cuda:0", "rl_device=cuda:0",
             "headless=True", *(DETERMINISTIC if args.task != "Cartpole" else [])]
-    graphed = build_task(compose_config([*base, "+task.sim.captureStep=True"]))
-    eager = build_task(compose_config([*base, "+task.sim.captureStep=False", "+task.sim.compileStep=False"]))
+    preset = args.randomization if args.task != "Cartpole" else "off"
+    graphed = build_task(apply_randomization(compose_config([*base, "+task.sim.captureStep=True"]), preset))
+    eager = build_task(apply_randomization(compose_config([*base, "+task.sim.captureStep=False",
+                                                           "+task.sim.compileStep=False"]), preset))
     graphed.reset()
     eager.reset()
     if hasattr(graphed, "commands"):
@@ -58,7 +62,7 @@ def main() -> None:
     # GPU contact physics is not bit-deterministic, so observations of the two runs drift apart over the steps
     # (reported); rewards and resets are what must agree.
     ok = graphed._step_graphs is not None and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0
-    print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps,
+    print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps, "randomization": preset,
                       "graph_captured": graphed._step_graphs is not None,
                       "step_execution": [graphed.step_execution, eager.step_execution], **worst, "ok": ok}), flush=True)
     sys.exit(0 if ok else 1)

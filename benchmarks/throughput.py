@@ -8,6 +8,7 @@
 The ratio (b)/(a) is the framework's efficiency. Prints one JSON object.
 
   python benchmarks/throughput.py --task Go1 --num_envs 4096 [--sim_device cuda:0] [--train_iterations 5]
+  python benchmarks/throughput.py --task Go1 --num_envs 4096 deterministic=True   # the cost of deterministic mode
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 
 import torch
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.learning.launch import build_task, seed_run
 from isaacgymenvs_mw.learning.runner import Runner, device_description, package_versions, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
@@ -78,6 +79,7 @@ def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_it
             overrides: list[str]) -> dict:
     cfg = compose_config([f"task={task_name}", f"num_envs={num_envs}", f"sim_device={sim_device}",
                           f"rl_device={sim_device}", "headless=True", *overrides])
+    seed_run(cfg)  # deterministic=True (a run-level override) switches torch's deterministic algorithms on too
     task = build_task(cfg)
     dev = task.sim_device
     env = RslRlVecEnv(task)  # resets every env
@@ -115,6 +117,7 @@ def measure(task_name: str, num_envs: int, sim_device: str, steps: int, train_it
         "train_env_steps_per_s": train,
         "ratio_vectask_over_physics": vectask / physics,
         "step_execution": task.step_execution,
+        "deterministic": task.sim.deterministic,
         "device": device_description(dev),
         "versions": package_versions(),
         "date": time.strftime("%Y-%m-%d"),

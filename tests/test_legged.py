@@ -34,9 +34,9 @@ POLICY_OBS, NUM_STATES = 48, 55  # task YAML: env.numObservations, env.numStates
 
 # No pushes, ground friction fixed at 1.0 and no observation noise: the robot's state is what the test wrote.
 QUIET = [
-    "task.env.randomization.pushRobots=False",
-    "task.env.randomization.frictionRange=[1.0,1.0]",
-    "task.env.randomization.observationNoise.enabled=False",
+    "~task.task.randomization_params.push",
+    "task.task.randomization_params.actor_params.rigid_shape_properties.friction.range=[1.0,1.0]",
+    "~task.task.randomization_params.observations",
 ]
 
 # Facts typed from their sources (named per entry).
@@ -68,7 +68,7 @@ FACTS = {
                                      "RH_FOOT": 0.54882},
         "foot_radius_robots_md": 0.03,
         "pd": {"kp": 80.0, "kd": 2.0, "action_scale": 0.5},  # cfg/task/Anymal.yaml env.control
-        "added_mass_range": (-5.0, 5.0),  # cfg/task/Anymal.yaml randomization.addedMassRange
+        "added_mass_range": (-5.0, 5.0),  # cfg/task/Anymal.yaml task.randomization_params...mass.range
     },
     "Go1": {
         "urdf": "assets/urdf/go1/go1.urdf",
@@ -98,7 +98,7 @@ FACTS = {
                                      "RL_foot": 0.31251},
         "foot_radius_robots_md": 0.02,
         "pd": {"kp": 20.0, "kd": 0.5, "action_scale": 0.25},  # cfg/task/Go1.yaml env.control
-        "added_mass_range": (-1.0, 1.0),  # cfg/task/Go1.yaml randomization.addedMassRange
+        "added_mass_range": (-1.0, 1.0),  # cfg/task/Go1.yaml task.randomization_params...mass.range
     },
 }
 
@@ -441,7 +441,7 @@ def test_zero_scale_term_is_not_computed_and_episode_sums_are_logged(robot, monk
 # --------------------------------------------------------------------------------- 6. randomisation
 def test_friction_and_mass_are_randomised_per_env_within_yaml_ranges(default_task, robot, urdf):
     task, facts = default_task, FACTS[robot]
-    rand = yaml_cfg(robot).env.randomization
+    rand = yaml_cfg(robot).task.randomization_params.actor_params
     model = task.sim.mj_model
     ground = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "ground")
     base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, facts["base"])
@@ -449,7 +449,7 @@ def test_friction_and_mass_are_randomised_per_env_within_yaml_ranges(default_tas
     geom_friction = task.sim.model_field("geom_friction").numpy()
     assert geom_friction.shape == (N, model.ngeom, 3)
     friction = geom_friction[:, ground, 0]
-    lo, hi = rand.frictionRange
+    lo, hi = rand.rigid_shape_properties.friction.range  # x the plane's friction, 1.0
     assert (lo, hi) == (0.5, 1.25)  # cfg/task/{Anymal,Go1}.yaml
     assert np.all((friction >= lo) & (friction <= hi)), friction
     assert len(np.unique(friction)) > 1, friction
@@ -463,7 +463,7 @@ def test_friction_and_mass_are_randomised_per_env_within_yaml_ranges(default_tas
     body_mass = task.sim.model_field("body_mass").numpy()
     assert body_mass.shape == (N, model.nbody)
     added = body_mass[:, base] - urdf["masses"][facts["base"]]
-    lo, hi = rand.addedMassRange
+    lo, hi = rand.rigid_body_properties.mass.range
     assert (lo, hi) == facts["added_mass_range"]
     assert np.all((added >= lo - 1e-5) & (added <= hi + 1e-5)), added
     assert len(np.unique(added)) > 1, added

@@ -35,6 +35,7 @@ def no_simulator(monkeypatch):
     ("capture_video=maybe", "capture_video='maybe'", "True or False"),
     ("torch_deterministic=0", "torch_deterministic=0", "True or False"),
     ("verbose=2", "verbose=2", "True or False"),
+    ("deterministic=on", "deterministic='on'", "True or False"),
     ("capture_video_freq=0", "capture_video_freq=0", "whole number >= 1"),
     ("capture_video_len=abc", "capture_video_len='abc'", "whole number >= 1"),
     ("graphics_device_id=x", "graphics_device_id='x'", "whole number >= -1"),

@@ -313,7 +313,7 @@ def test_nonfinite_resets_reach_the_run_summary(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------------------------------- 4. contact overflow
-GO1_QUIET = ["task.env.randomization.pushRobots=False", "task.env.randomization.observationNoise.enabled=False"]
+GO1_QUIET = ["~task.task.randomization_params.push", "~task.task.randomization_params.observations"]
 GO1_STEPS = 10  # 0.2 s: dropped from 0.34 m, the feet are on the ground
 
 

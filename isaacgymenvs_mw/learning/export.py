@@ -1,17 +1,41 @@
-"""Export a trained policy for deployment: ONNX and TorchScript, observation normaliser included."""
+"""Export a trained policy for deployment: ONNX and TorchScript, observation normaliser included, with the metadata a
+robot runtime needs (docs/deploy.md).
+
+``out_dir`` receives:
+  * ``policy.onnx``   input 'obs', output 'actions', any batch size; the metadata in ``metadata_props``
+                      (one entry per top-level key, values JSON-encoded)
+  * ``policy.pt``     TorchScript; the metadata as the extra file ``metadata.json``
+  * ``policy.json``   the same metadata, for people and scripts
+  * ``model.mjb``     the task's compiled MuJoCo model (binary, same MuJoCo version), for sim-to-sim checks
+"""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
 
+import isaacgymenvs_mw
+from isaacgymenvs_mw.learning.runner import package_versions
 
-def export_policy(runner: OnPolicyRunner, out_dir: Path) -> tuple[Path, Path]:
-    """Write ``policy.onnx`` (any batch size, input 'obs', output 'actions') and ``policy.pt`` (TorchScript).
+METADATA_FILE = "metadata.json"  # name of the TorchScript extra file
 
-    Both map raw observations, as the task returns them, to the deterministic (mean) action.
+
+def policy_metadata(task) -> dict[str, Any]:
+    """The task's deployment description (``VecTask.deployment_info``) plus the versions that produced it."""
+    info = dict(task.deployment_info())
+    info["versions"] = {"isaacgymenvs_mw": isaacgymenvs_mw.__version__, **package_versions()}
+    info["files"] = {"onnx": "policy.onnx", "torchscript": "policy.pt", "mujoco_model": "model.mjb"}
+    return info
+
+
+def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Path, Path]:
+    """Write ``policy.onnx`` and ``policy.pt`` (and, given the task, their metadata and ``model.mjb``).
+
+    Both map raw observations, as the task returns them (history stacked), to the deterministic (mean) action.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -23,4 +47,35 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path) -> tuple[Path, Path]:
             dynamic_axes={"obs": {0: "batch"}, "actions": {0: "batch"}}, opset_version=18, dynamo=False,
         )
     runner.export_policy_to_jit(str(out_dir), filename=jit_path.name)
+    if task is not None:
+        metadata = policy_metadata(task)
+        text = json.dumps(metadata, indent=2)
+        (out_dir / "policy.json").write_text(text + "\n")
+        _add_onnx_metadata(onnx_path, metadata)
+        jit = torch.jit.load(str(jit_path), map_location="cpu")
+        torch.jit.save(jit, str(jit_path), _extra_files={METADATA_FILE: text})
+        task.sim.save_model(str(out_dir / "model.mjb"))
     return onnx_path, jit_path
+
+
+def _add_onnx_metadata(path: Path, metadata: dict[str, Any]) -> None:
+    import onnx  # installed with torch's ONNX exporter (onnxscript)
+
+    proto = onnx.load(str(path))
+    del proto.metadata_props[:]
+    for key, value in metadata.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, json.dumps(value)
+    onnx.save(proto, str(path))
+
+
+def read_metadata(path: Path) -> dict[str, Any]:
+    """The metadata of an exported ``policy.onnx`` (from its metadata_props) or ``policy.pt`` (its extra file)."""
+    path = Path(path)
+    if path.suffix == ".onnx":
+        import onnx
+
+        return {p.key: json.loads(p.value) for p in onnx.load(str(path)).metadata_props}
+    extra = {METADATA_FILE: ""}
+    torch.jit.load(str(path), map_location="cpu", _extra_files=extra)
+    return json.loads(extra[METADATA_FILE])

@@ -15,6 +15,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from isaacgymenvs_mw.learning.export import export_policy
+from isaacgymenvs_mw.learning.loggers import check_logger
 from isaacgymenvs_mw.learning.runner import (
     Runner,
     device_description,
@@ -48,6 +49,8 @@ def build_task(cfg: DictConfig):
     if sim_device.startswith("cuda"):
         torch.cuda.set_device(torch.device(sim_device))
     task_cfg = to_dict(cfg.task)
+    # The run-level `deterministic` reaches the sim layer through the task's sim section (MuJoCo Warp's option).
+    task_cfg.setdefault("sim", {})["deterministic"] = bool(cfg.get("deterministic", False))
     return task_class(
         task_cfg, rl_device=rl_device, sim_device=sim_device, graphics_device_id=cfg.graphics_device_id,
         headless=cfg.headless, virtual_screen_capture=False, force_render=False,
@@ -59,8 +62,10 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     started_at = time.perf_counter() if started_at is None else started_at
     check_run_config(cfg)
     rank = int(os.getenv("RANK", "0"))
-    seed = set_seed(int(cfg.seed), bool(cfg.torch_deterministic), rank=rank)
+    seed = seed_run(cfg, rank)
     train_cfg = rsl_rl_config(to_dict(cfg.train))
+    if not cfg.test:
+        check_logger(train_cfg)
     checkpoint = _checkpoint_path(cfg)
     if not cfg.test and rank == 0:
         check_runs_dir(cfg.runs_dir)
@@ -80,7 +85,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
         _load(runner, checkpoint, task)
         policy = runner.get_inference_policy(device=task.rl_device)
-        onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported")
+        onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported", task=task)
         print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
         result = evaluate(task, policy, task.rl_device)
         result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
@@ -101,6 +106,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         run_dir = _new_run_dir(run_dir)
         OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
         runner.log_dir = str(run_dir)
+        runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
         if videos:
             _attach_video_recorder(cfg, task, run_dir / "videos")
     print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
@@ -148,6 +154,12 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     if interrupted is not None:
         raise interrupted  # train.py turns it into exit status 128 + signal number
     return summary
+
+
+def seed_run(cfg: DictConfig, rank: int = 0) -> int:
+    """Seed the run; ``deterministic=True`` implies ``torch_deterministic`` (bit-identical training needs both)."""
+    deterministic = bool(cfg.get("deterministic", False))
+    return set_seed(int(cfg.seed), bool(cfg.torch_deterministic) or deterministic, rank=rank)
 
 
 class Terminated(KeyboardInterrupt):
@@ -234,10 +246,11 @@ def _load(runner: Runner, checkpoint: Path, task) -> None:
     weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
     if weights:
         ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
-        if ckpt_obs != task.num_obs or ckpt_act != task.num_actions:
+        num_obs = task.observation_space.shape[0]  # with env.history: the stacked size the policy sees
+        if ckpt_obs != num_obs or ckpt_act != task.num_actions:
             raise ValueError(
                 f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
-                f"task {type(task).__name__} has {task.num_obs} observations and {task.num_actions} actions"
+                f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"
             )
     runner.load(str(checkpoint), map_location=task.rl_device)
 

@@ -19,8 +19,9 @@ from pathlib import Path
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
-from torch.utils.tensorboard import SummaryWriter
+from rsl_rl.utils.log_writer import LogWriter
 
+from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import check_train_config
 
@@ -72,10 +73,15 @@ class Runner(OnPolicyRunner):
         self.total_env_steps = 0
         self.train_time = 0.0
         self.nonfinite_resets = 0
+        self.run_config: dict | None = None  # the resolved run config, attached to W&B runs
+        self.experiment = "run"  # W&B's default project
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
-        writer = SummaryWriter(self.log_dir, flush_secs=10) if (self.log_dir and self.is_main) else None
+        writer = None
+        if self.log_dir and self.is_main:
+            writer = make_writer(self.cfg, self.log_dir, self.experiment, self.run_config)
+            self.logger.writer = writer  # rsl-rl-lib's save() uploads checkpoints through it (W&B)
         if init_at_random_ep_len:
             env.episode_length_buf = torch.randint_like(env.episode_length_buf, high=int(env.max_episode_length))
         obs = env.get_observations().to(self.device)
@@ -120,11 +126,15 @@ class Runner(OnPolicyRunner):
             if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
                 self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}_interrupted.pt"))
             raise
+        else:  # saved while the writer is open, so that W&B uploads the final checkpoint too
+            if self.is_main and self.log_dir:
+                self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}.pt"))
         finally:
             if writer is not None:
                 writer.close()
-        if self.is_main and self.log_dir:
-            self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}.pt"))
+                if isinstance(writer, LogWriter):
+                    writer.stop()
+                self.logger.writer = None
 
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
@@ -137,7 +147,8 @@ class Runner(OnPolicyRunner):
             self.recent.append(stats)
         fps = env_steps / max(collect_s + learn_s, 1e-9)
         record = {"iteration": it + 1, "env_steps": self.total_env_steps, "time_s": self.train_time,
-                  "steps_per_s": fps, "collect_s": collect_s, "learn_s": learn_s, **{k: v for k, v in stats.items()}}
+                  "steps_per_s": fps, "collect_s": collect_s, "learn_s": learn_s, **{k: v for k, v in stats.items()},
+                  "losses": {k: float(v) for k, v in losses.items()}, "learning_rate": float(self.alg.learning_rate)}
         self.history.append(record)
         self.nonfinite_resets += int(stats["nonfinite_resets"])
         if not self.is_main:

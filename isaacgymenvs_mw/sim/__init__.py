@@ -35,13 +35,16 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     load_spec,
     match_joint_values,
     movable_joint_names,
+    name_matches,
 )
 from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
+from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 
 __all__ = [
     "DRIVE_MODES",
     "GroundPlane",
+    "InertiaConstants",
     "JointDrive",
     "ModelRequest",
     "SolverOptions",
@@ -49,6 +52,8 @@ __all__ = [
     "build_model",
     "load_spec",
     "match_joint_values",
+    "model_names",
     "movable_joint_names",
     "set_verbose",
+    "name_matches",
 ]

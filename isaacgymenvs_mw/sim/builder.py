@@ -37,6 +37,7 @@ class JointDrive:
     mode: str = "none"
     stiffness: float = 0.0
     damping: float = 0.0
+    torque_limit: float | None = None  # |force| <= this (a DC motor's continuous limit); None: the joint's own
 
 
 @dataclass
@@ -108,10 +109,7 @@ def match_joint_values(
     patterns = dict(patterns or {})
     resolved: dict[str, object] = {}
     for pattern in patterns:
-        if not any(pattern == name or re.search(pattern, name) for name in joint_names):
-            raise ValueError(
-                f"{key}: '{pattern}' matches no joint. Joints of this asset: {list(joint_names)}"
-            )
+        name_matches(pattern, joint_names, key, "joints")
     for name in joint_names:
         if name in patterns:
             resolved[name] = patterns[name]
@@ -124,6 +122,22 @@ def match_joint_values(
             if default is not None:
                 resolved[name] = default
     return resolved
+
+
+def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> list[int]:  # kind: "joints", ...
+    """Indices of the names ``pattern`` selects: the one of that exact name, or else every name in which it is
+    found as a regular expression (the rule of ``match_joint_values``). Selecting nothing is an error naming ``key``.
+    """
+    if pattern in names:
+        return [list(names).index(pattern)]
+    try:
+        hits = [i for i, name in enumerate(names) if re.search(pattern, name)]
+    except re.error as err:
+        raise ValueError(f"{key}: '{pattern}' is not a valid regular expression ({err})") from None
+    if not hits:
+        singular = {"bodies": "body"}.get(kind, kind[:-1])
+        raise ValueError(f"{key}: '{pattern}' matches no {singular}. {kind.capitalize()} of this asset: {list(names)}")
+    return hits
 
 
 def build_model(request: ModelRequest) -> mujoco.MjModel:
@@ -211,6 +225,10 @@ def _add_actuator(spec: mujoco.MjSpec, joint_name: str, drive: JointDrive) -> No
         act.set_to_position(kp=float(drive.stiffness), kv=float(drive.damping))
     # Command ranges stay open: the joint's actuatorfrcrange (URDF effort limit) clamps the force.
     act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    if drive.torque_limit is not None:
+        # A torque-speed limit (sim/actuators.py) rewrites this range per world and physics step.
+        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.forcerange = [-float(drive.torque_limit), float(drive.torque_limit)]
 
 
 def _apply_options(spec: mujoco.MjSpec, o: SolverOptions) -> None:

@@ -18,6 +18,7 @@ import torch
 import warp as wp
 
 import mujoco_warp as mjw
+from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
 
 # Overflow bits we report, and the task YAML key that fixes each.
@@ -50,7 +51,12 @@ class Simulator:
         substeps: physics steps per ``simulate()`` call (= controlFrequencyInv).
         nconmax: contacts per world (pooled over worlds by MuJoCo Warp).
         njmax: constraint rows per world.
-        per_world_fields: Model fields given one value per world (domain randomisation), e.g. "geom_friction".
+        per_world_fields: Model fields given one value per world (domain randomisation), e.g. "geom_friction";
+            "opt.gravity" gives each world its own gravity.
+        use_graphs: capture the physics as CUDA graphs (None: on CUDA devices).
+        deterministic: MuJoCo Warp's ``opt.deterministic`` (all ``DeterminismType`` bits): floating-point atomic
+            sums in a fixed order, so that the same inputs on the same GPU give the same bits (see docs/config.md,
+            ``deterministic``). Costs speed on GPU; the CPU device runs kernels serially either way.
     """
 
     def __init__(
@@ -63,6 +69,7 @@ class Simulator:
         njmax: int | None = None,
         per_world_fields: Sequence[str] = (),
         use_graphs: bool | None = None,
+        deterministic: bool = False,
     ) -> None:
         if num_worlds < 1:
             raise ValueError(f"numEnvs must be >= 1, got {num_worlds}")
@@ -79,15 +86,23 @@ class Simulator:
             self.use_graphs = False
 
         with wp.ScopedDevice(self.wp_device):
-            self.model = mjw.put_model(mj_model, batch_sizes={f: self.num_worlds for f in per_world_fields})
+            fields = [f for f in per_world_fields if not f.startswith("opt.")]
+            self.model = mjw.put_model(mj_model, batch_sizes={f: self.num_worlds for f in fields})
+            if "opt.gravity" in per_world_fields:
+                # Option fields are not put_model's to batch; the step reads gravity[world % rows] all the same.
+                rows = np.tile(np.asarray(mj_model.opt.gravity, dtype=np.float32), (self.num_worlds, 1))
+                self.model.opt.gravity = wp.array(rows, dtype=wp.vec3)
             # Device printf per world per step would serialise the GPU; we poll d.overflow instead.
             self.model.opt.warn_overflow = 0
+            # Set before anything is compiled or captured: the bits select the kernels (Warp module options).
+            self.model.opt.deterministic = int(mjw.DeterminismType.ALL if deterministic else mjw.DeterminismType.NONE)
             self.data = mjw.make_data(mj_model, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
         self._load_kernels(nconmax, njmax)
 
         self._bind_views()
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._graphs: dict[str, object] = {}
+        self.torque_speed: TorqueSpeedLimit | None = None
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
 
     def _load_kernels(self, nconmax: int | None, njmax: int | None) -> None:
@@ -107,6 +122,7 @@ class Simulator:
         self.ctrl = wp.to_torch(d.ctrl)
         self.qacc = wp.to_torch(d.qacc)
         self.qfrc_actuator = wp.to_torch(d.qfrc_actuator)
+        self.actuator_force = wp.to_torch(d.actuator_force)  # per actuator, after its force range
         self.xpos = wp.to_torch(d.xpos)
         self.xquat = wp.to_torch(d.xquat)
         self.sensordata = wp.to_torch(d.sensordata)
@@ -151,12 +167,29 @@ class Simulator:
         return self.dof_pos.shape[1]
 
     @property
+    def deterministic(self) -> bool:
+        """Whether MuJoCo Warp runs in its deterministic mode (``opt.deterministic``)."""
+        return bool(self.model.opt.deterministic)
+
+    @property
     def dt(self) -> float:
         return float(self.mj_model.opt.timestep)
 
     def model_field(self, name: str) -> torch.Tensor:
-        """Torch view of a Model array (per-world fields have num_worlds rows)."""
+        """Torch view of a Model array (per-world fields have num_worlds rows); "opt.gravity" for gravity."""
+        if name.startswith("opt."):
+            return wp.to_torch(getattr(self.model.opt, name[len("opt."):]))
         return wp.to_torch(getattr(self.model, name))
+
+    def enable_torque_speed_limit(self, saturation: np.ndarray, limit: np.ndarray, speed: np.ndarray) -> None:
+        """Limit each drive's force by a DC motor's torque-speed curve (``sim/actuators.py``), per physics step.
+
+        Arguments are per actuator (nu,); the model must batch ``actuator_forcerange`` per world and compile the
+        limited actuators with ``forcelimited``. ``self.torque_speed`` then holds the per-world parameter views.
+        """
+        self.torque_speed = TorqueSpeedLimit(self.mj_model, self.model, self.data, self.num_worlds, self.device,
+                                             saturation, limit, speed)
+        self.recapture()
 
     def contact_columns(self, bodies: Sequence[str]) -> torch.Tensor:
         """Columns of ``sensordata`` holding each body's net contact force, (len(bodies), 3); build once, reuse.
@@ -192,8 +225,12 @@ class Simulator:
     def simulate(self) -> None:
         """Advance every world by ``substeps`` physics steps."""
 
+        limiter = self.torque_speed
+
         def physics() -> None:
             for _ in range(self.substeps):
+                if limiter is not None:
+                    limiter.launch()
                 mjw.step(self.model, self.data)
 
         self._run("physics", physics)
@@ -271,6 +308,26 @@ class Simulator:
         with wp.ScopedDevice(self.wp_device):
             mjw.set_const(self.model, self.data)
         self.recapture()
+
+    def joint_pd_gains(self) -> dict[str, tuple[float, float]]:
+        """{joint: (stiffness, damping)} of the joints driven by position actuators (MuJoCo's kp and kv)."""
+        m, out = self.mj_model, {}
+        for a in range(m.nu):
+            is_joint = int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT)
+            # A position actuator: force = kp * ctrl - kp * q - kv * qdot (gain kp, bias (0, -kp, -kv)).
+            is_position = float(m.actuator_gainprm[a, 0]) != 0.0 and float(m.actuator_biasprm[a, 1]) != 0.0
+            if is_joint and is_position:
+                name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.actuator_trnid[a, 0]))
+                out[name] = (float(m.actuator_gainprm[a, 0]), -float(m.actuator_biasprm[a, 2]))
+        return out
+
+    def save_model(self, path: str) -> None:
+        """Write the compiled host model (nominal values, no per-world randomisation) as MuJoCo's binary ``.mjb``.
+
+        ``mujoco.MjModel.from_binary_path`` loads it back, with the same MuJoCo version, as the very model that was
+        trained on: actuators (PD gains), solver options, contact sensors and the floor included.
+        """
+        mujoco.mj_saveModel(self.mj_model, str(path), None)
 
     def geom_id(self, name: str) -> int:
         gid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_GEOM, name)

@@ -33,9 +33,7 @@ class LeggedTask(VecTask):
         self._init_bodies(env["asset"])
         self._init_buffers(env)
         self._init_rewards(env["rewards"])
-        self._init_randomization(env.get("randomization", {}))
         self.build_observation_layouts()
-        self.noise_scale = self.obs_layout.noise_scale(self.device)
 
     # ----------------------------------------------------------------- model
     def model_request(self) -> ModelRequest:
@@ -53,10 +51,6 @@ class LeggedTask(VecTask):
         request.base_init_pos = tuple(init["pos"])
         request.base_init_quat = tuple(init.get("rot", (1.0, 0.0, 0.0, 0.0)))
         return request
-
-    def make_simulator(self, request, per_world_fields=()):
-        # Friction and mass are randomised per env, so those Model fields get one row per world.
-        return super().make_simulator(request, per_world_fields=("geom_friction", "body_mass"))
 
     def _init_joint_settings(self, env: dict) -> None:
         names = self.sim.dof_names
@@ -124,7 +118,11 @@ class LeggedTask(VecTask):
         self.projected_gravity = torch.zeros(n, 3, device=dev)
         self.contact_force_norm = torch.zeros(n, self._contact_adr.shape[0], device=dev)
         self.torques = self.sim.qfrc_actuator[:, 6:]
-
+        # The critic's privileged view of the randomised world: the ground's friction and the base's added mass,
+        # read from the (possibly per-world) model fields the randomisation layer writes.
+        self._ground_friction = self.sim.model_field("geom_friction")[:, self.ground_geom, 0:1]
+        self._base_mass = self.sim.model_field("body_mass")[:, self.base_body:self.base_body + 1]
+        self._nominal_base_mass = float(self.sim.mj_model.body_mass[self.base_body])
 
     def _init_rewards(self, rew: dict) -> None:
         available = sorted(name[len("_reward_"):] for name in dir(self) if name.startswith("_reward_"))
@@ -144,36 +142,18 @@ class LeggedTask(VecTask):
         # One column per active term: per-episode sums, kept as one tensor so bookkeeping is a few kernels.
         self.episode_sums = torch.zeros(self.num_envs, len(active), device=self.device)
 
-    def _init_randomization(self, rand: dict) -> None:
-        n, dev = self.num_envs, self.device
-        friction = self.sim.model_field("geom_friction")
-        lo, hi = rand.get("frictionRange", [1.0, 1.0])
-        self.friction = lo + (hi - lo) * torch.rand(n, device=dev)
-        friction[:, self.ground_geom, 0] = self.friction
-        mass = self.sim.model_field("body_mass")
-        lo, hi = rand.get("addedMassRange", [0.0, 0.0])
-        self.added_mass = lo + (hi - lo) * torch.rand(n, device=dev)
-        mass[:, self.base_body] += self.added_mass
-        self.sim.commit_model_changes()
-        self.push_interval = (max(1, int(round(float(rand["pushInterval_s"]) / self.control_dt)))
-                              if rand.get("pushRobots", False) else 0)
-        self.max_push_vel = float(rand.get("maxPushVelXY", 0.0))
-        noise = rand.get("observationNoise", {})
-        level = float(noise.get("noiseLevel", 0.0)) if noise.get("enabled", False) else 0.0
-        self.obs_noise = {k: level * float(noise.get(k, 0.0)) for k in ("linVel", "angVel", "gravity", "dofPos",
-                                                                          "dofVel")}
-
     # ----------------------------------------------------------- observations
     def observation_terms(self) -> list[ObsTerm]:
-        s, noise, nj = self.obs_scales, self.obs_noise, self.num_actions
+        # Sensor noise per term comes from task.randomization_params.observations.terms (randomisation layer).
+        s, nj = self.obs_scales, self.num_actions
         return [
-            ObsTerm("base_lin_vel", 3, s["linVel"], noise["linVel"] * s["linVel"]),  # body frame, m/s
-            ObsTerm("base_ang_vel", 3, s["angVel"], noise["angVel"] * s["angVel"]),  # body frame, rad/s
-            ObsTerm("projected_gravity", 3, 1.0, noise["gravity"]),                   # unit vector, body frame
+            ObsTerm("base_lin_vel", 3, s["linVel"]),    # body frame, m/s
+            ObsTerm("base_ang_vel", 3, s["angVel"]),    # body frame, rad/s
+            ObsTerm("projected_gravity", 3, 1.0),       # unit vector, body frame
             ObsTerm("commands", 3),                     # vx, vy (linVel scale), yaw rate (angVel scale)
-            ObsTerm("dof_pos", nj, s["dofPos"], noise["dofPos"] * s["dofPos"]),       # minus the default pose
-            ObsTerm("dof_vel", nj, s["dofVel"], noise["dofVel"] * s["dofVel"]),
-            ObsTerm("actions", nj),                     # the last policy output
+            ObsTerm("dof_pos", nj, s["dofPos"]),        # minus the default pose
+            ObsTerm("dof_vel", nj, s["dofVel"]),
+            ObsTerm("actions", nj),                     # the action the drives received (delayed, if delayed)
         ]
 
     def state_terms(self) -> list[ObsTerm]:
@@ -185,6 +165,25 @@ class LeggedTask(VecTask):
             ObsTerm("base_height", 1),      # m
             ObsTerm("feet_contact", len(self.feet)),  # 1 where the foot's contact force exceeds 1 N
         ]
+
+    def deployment_info(self) -> dict:
+        info = super().deployment_info()
+        gains = self.sim.joint_pd_gains()
+        names = self.sim.dof_names
+        info.update(
+            joint_names=names,  # action i drives joint_names[i]
+            default_joint_pos=self.default_dof_pos.tolist(),
+            action_scale=self.action_scale,
+            action_to_target="target = default_joint_pos + action_scale * clip(action, +-clip_actions)",
+            stiffness=[gains[n][0] if n in gains else 0.0 for n in names],
+            damping=[gains[n][1] if n in gains else 0.0 for n in names],
+            commands_scale=self.commands_scale.tolist(),  # the `commands` term: (vx, vy, yaw rate) times this
+            command_ranges={"lin_vel_x": self.command_ranges[0].tolist(), "lin_vel_y": self.command_ranges[1].tolist(),
+                            "yaw_rate": self.command_ranges[2].tolist()},
+            base_init_pos=self.base_init_pos[0].tolist(),
+            base_init_quat=self.base_init_quat[0].tolist(),
+        )
+        return info
 
     # --------------------------------------------------------------- stepping
     def pre_physics_step(self, actions: torch.Tensor) -> None:
@@ -199,8 +198,6 @@ class LeggedTask(VecTask):
         done = self.reset_buf != 0
         self.reset_idx(done)
         self._resample_commands((self.progress_buf % self.command_resample_steps == 0) & ~done)
-        if self.push_interval:
-            self._push((self.progress_buf % self.push_interval == 0) & (self.progress_buf > 0))
         self._refresh_state()
         self.compute_observations()
         if self.record_eval_metrics:
@@ -245,9 +242,11 @@ class LeggedTask(VecTask):
         ), dim=-1)
         if self.num_states:
             feet_contact = (self.contact_force_norm[:, self._feet_idx] > 1.0).float()
-            self.states_buf[:] = torch.cat((obs, self.friction.unsqueeze(1), self.added_mass.unsqueeze(1),
+            n = self.num_envs
+            self.states_buf[:] = torch.cat((obs, self._ground_friction.expand(n, 1),
+                                            (self._base_mass - self._nominal_base_mass).expand(n, 1),
                                             self.sim.root_pos[:, 2:3], feet_contact), dim=-1)
-        self.obs_buf[:] = obs + (2.0 * torch.rand_like(obs) - 1.0) * self.noise_scale
+        self.obs_buf[:] = obs  # the randomisation layer adds the observation noise
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         mask = self.env_mask(env_ids)
@@ -282,10 +281,6 @@ class LeggedTask(VecTask):
         small = torch.norm(new[:, :2], dim=1, keepdim=True) < self.min_command_norm
         new[:, :2] = torch.where(small, torch.zeros_like(new[:, :2]), new[:, :2])
         self.commands[:] = torch.where(mask.unsqueeze(1), new, self.commands)
-
-    def _push(self, mask: torch.Tensor) -> None:
-        kick = self.max_push_vel * (2.0 * torch.rand(self.num_envs, 2, device=self.device) - 1.0)
-        self.sim.root_lin_vel[:, :2] = torch.where(mask.unsqueeze(1), kick, self.sim.root_lin_vel[:, :2])
 
     # ------------------------------------------------------------ reward terms
     def _reward_tracking_lin_vel(self) -> torch.Tensor:

@@ -11,6 +11,8 @@ Resets are selected by masks, not index lists, so that a step never waits on the
 On CUDA the post-physics work is compiled with torch.compile (``sim.compileStep``) and, with the pre-physics
 work, captured as CUDA graphs (``sim.captureStep``): the hooks must stay device-only tensor code.
 ``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
+With ``task.randomize: True`` the randomisation layer (``tasks/base/randomization.py``) wraps ``reset_idx`` so that
+the resetting worlds draw their randomised model values before the task's own reset runs.
 """
 
 from __future__ import annotations
@@ -36,7 +38,9 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.randomization import Randomizer, wrap_reset
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 
@@ -74,6 +78,12 @@ class VecTask:
         self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
         self.clip_obs = _positive(env, "clipObservations", math.inf)
         self.clip_actions = _positive(env, "clipActions", math.inf)
+        self.history_specs = parse_history(env)
+        if "critic" in self.history_specs and self.num_states == 0:
+            raise ValueError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
+                             "policy observation, history included (env.history.policy)")
+        self.obs_history: ObsHistory | None = None
+        self.state_history: ObsHistory | None = None
 
         self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
         self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
@@ -84,12 +94,16 @@ class VecTask:
         sim_cfg = config.get("sim", {})
         self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
 
+        # Parsed before the model is built: it decides which Model fields get one value per world.
+        self.randomizer = Randomizer(config.get("task"), float(sim_cfg.get("dt", SolverOptions().dt))
+                                     * self.control_freq_inv, self.num_environments, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
         if self.sim is None:
             raise RuntimeError(f"{type(self).__name__}.create_sim() must set self.sim")
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
+        self._setup_randomization()
 
         self.viewer = None
         self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
@@ -98,6 +112,8 @@ class VecTask:
         self.obs_dict: dict[str, torch.Tensor] = {}
         self.obs_layout: ObsLayout | None = None
         self.state_layout: ObsLayout | None = None
+        self._layouts_built = False
+        self._build_history()  # a whole-vector history has its size now; a selection of terms waits for the layout
 
     # --------------------------------------------------------------- building
     def create_sim(self) -> None:
@@ -116,7 +132,9 @@ class VecTask:
         modes = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode", default_mode)
         stiffness = match_joint_values(control.get("stiffness"), joints, "env.control.stiffness", 0.0)
         damping = match_joint_values(control.get("damping"), joints, "env.control.damping", 0.0)
-        drives = {j: JointDrive(str(modes[j]), float(stiffness[j]), float(damping[j])) for j in joints}
+        self._torque_speed = torque_speed_limits(control.get("torqueSpeed"), joints)
+        drives = {j: JointDrive(str(modes[j]), float(stiffness[j]), float(damping[j]),
+                                self._torque_speed[j][1] if j in self._torque_speed else None) for j in joints}
         plane = env.get("plane", {})
         ground = GroundPlane(float(plane.get("friction", 1.0))) if plane.get("enabled", False) else None
         return ModelRequest(
@@ -133,6 +151,9 @@ class VecTask:
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         sim = self.cfg.get("sim", {})
+        # The randomised quantities' fields, and the force ranges a torque-speed limit rewrites, are per world.
+        fields = tuple(per_world_fields) + self.randomizer.per_world_fields()
+        fields += ("actuator_forcerange",) if getattr(self, "_torque_speed", None) else ()
         return Simulator(
             build_model(request),
             num_worlds=self.num_environments,
@@ -140,9 +161,23 @@ class VecTask:
             substeps=self.control_freq_inv,
             nconmax=sim.get("nconmax"),
             njmax=sim.get("njmax"),
-            per_world_fields=per_world_fields,
+            per_world_fields=tuple(dict.fromkeys(fields)),
             use_graphs=sim.get("useGraphs"),
+            deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
         )
+
+    def _setup_randomization(self) -> None:
+        """Actuator realism (torque-speed limit, action delay) and the randomisation layer, on the built model."""
+        limits = getattr(self, "_torque_speed", {})
+        if limits:
+            m = self.sim.mj_model
+            joint_of = [m.joint(int(j)).name for j in m.actuator_trnid[:, 0]]
+            params = np.array([limits.get(j, (math.inf,) * 3) for j in joint_of], dtype=np.float64).reshape(-1, 3)
+            self.sim.enable_torque_speed_limit(params[:, 0], params[:, 1], params[:, 2])
+        self.randomizer.bind(self.sim)
+        delay = self.cfg["env"].get("control", {}).get("actionDelay", 0)
+        self.randomizer.setup_delay(whole_number(delay, "env.control.actionDelay", 0), self.num_actions)
+        wrap_reset(self, self.randomizer.on_reset)
 
     def asset_path(self, asset_cfg: dict) -> Path:
         root = asset_cfg.get("assetRoot") or ASSETS_DIR
@@ -257,12 +292,55 @@ class VecTask:
         """
         terms = self.observation_terms()
         if terms is not None:
-            self.obs_layout = ObsLayout(terms)
+            self.obs_layout = self.randomizer.with_term_noise(ObsLayout(terms))
             self.obs_layout.check(self.num_obs, "env.numObservations")
         terms = self.state_terms() if self.num_states > 0 else None
         if terms is not None:
             self.state_layout = ObsLayout(terms)
             self.state_layout.check(self.num_states, "env.numStates")
+        self._layouts_built = True
+        self._build_history()
+
+    def _build_history(self) -> None:
+        """``env.history``: stacked policy/critic inputs; the spaces (and so the networks) take the stacked sizes."""
+        n, dev = self.num_envs, self.device
+        ready = lambda spec: spec is not None and (spec.terms is None or self._layouts_built)  # noqa: E731
+        spec = self.history_specs.get("policy")
+        if ready(spec) and self.obs_history is None:
+            self.obs_history = ObsHistory(spec, self.num_obs, self.obs_layout, n, dev)
+            self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_history.size,), dtype=np.float32)
+        spec = self.history_specs.get("critic")
+        if ready(spec) and self.state_history is None:
+            self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
+            self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
+
+    def deployment_info(self) -> dict[str, Any]:
+        """What a runtime needs to feed an exported policy and apply its actions (``learning/export.py`` adds the
+        versions). Tasks with joints add their joint names, default pose, action scale and PD gains."""
+        if not self._layouts_built:
+            self.build_observation_layouts()
+
+        def finite(x: float) -> float | None:  # JSON has no inf: "no clipping" is null
+            return x if math.isfinite(x) else None
+
+        def group(layout: ObsLayout | None, size: int, history: ObsHistory | None) -> dict[str, Any]:
+            return {"size": size if history is None else history.size, "frame_size": size,
+                    "terms": layout.describe() if layout is not None else None,
+                    "history": history.describe() if history is not None else {"length": 1}}
+
+        info: dict[str, Any] = {
+            "task": type(self).__name__,
+            "control_dt": self.control_dt,
+            "physics_dt": self.dt,
+            "decimation": self.control_freq_inv,
+            "num_actions": self.num_actions,
+            "clip_actions": finite(self.clip_actions),
+            "clip_observations": finite(self.clip_obs),
+            "observation": group(self.obs_layout, self.num_obs, self.obs_history),
+        }
+        if self.num_states > 0:
+            info["state"] = group(self.state_layout, self.num_states, self.state_history)
+        return info
 
     # ---------------------------------------------------------------- contract
     def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
@@ -292,9 +370,11 @@ class VecTask:
         self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
         self.extras["nonfinite_resets"] = self._nonfinite_buf
         # The next step rewrites the output buffers in place while the learner still holds this observation.
-        self.obs_dict["obs"] = self._obs_out.to(self.rl_device, copy=True)
+        obs = self._obs_out if self.obs_history is None else self.obs_history.out
+        self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
         if self.num_states > 0:
-            self.obs_dict["states"] = self._states_out.to(self.rl_device, copy=True)
+            states = self._states_out if self.state_history is None else self.state_history.out
+            self.obs_dict["states"] = states.to(self.rl_device, copy=True)
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
@@ -306,7 +386,8 @@ class VecTask:
 
     def _before_physics(self, actions: torch.Tensor) -> None:
         action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
-        self.pre_physics_step(action_tensor)
+        self.randomizer.before_physics(self.progress_buf)
+        self.pre_physics_step(self.randomizer.actions(action_tensor))
 
     def _after_physics(self) -> None:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
@@ -325,9 +406,16 @@ class VecTask:
         self.reset_buf |= blown_up
         self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
         self._nonfinite_buf.copy_(blown_up)
+        self.randomizer.observations(self.obs_buf)
+        self.randomizer.count_step()
         torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs, out=self._obs_out)
         if self.num_states > 0:
             torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs, out=self._states_out)
+        # env.history: an env reset in this step returned its new episode's first frame (reset_buf set).
+        if self.obs_history is not None:
+            self.obs_history.push(self._obs_out, self.reset_buf != 0)
+        if self.state_history is not None:
+            self.state_history.push(self._states_out, self.reset_buf != 0)
 
     @property
     def step_execution(self) -> str:
@@ -383,6 +471,9 @@ class VecTask:
         self._step_graphs = (before, after)
 
     def get_state(self) -> torch.Tensor:
+        """The critic's input as the last step returned it (stacked when ``env.history.critic`` is set)."""
+        if self.state_history is not None:
+            return self.state_history.out.to(self.rl_device, copy=True)
         return torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
 
     def zero_actions(self) -> torch.Tensor:
@@ -390,23 +481,32 @@ class VecTask:
 
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
-        if self.obs_layout is None and self.state_layout is None:
+        if not self._layouts_built:
             self.build_observation_layouts()
         self.reset_idx(self._all_envs)
         self._compute_checked_observations()
-        return self._clamped_obs_dict()
+        self.randomizer.observations(self.obs_buf)
+        return self._clamped_obs_dict(self._all_envs)
 
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
         self.reset_idx(done)
         self.compute_observations()
-        return self._clamped_obs_dict(), done.nonzero(as_tuple=False).flatten()
+        self.randomizer.observations(self.obs_buf)
+        return self._clamped_obs_dict(done), done.nonzero(as_tuple=False).flatten()
 
-    def _clamped_obs_dict(self) -> dict[str, torch.Tensor]:
-        self.obs_dict["obs"] = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
+    def _clamped_obs_dict(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The current observations, clamped; with ``env.history`` the ``new_episode`` envs' past is refilled."""
+        obs = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs)
+        if self.obs_history is not None:
+            obs = self.obs_history.reset(obs, new_episode)
+        self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
         if self.num_states > 0:
-            self.obs_dict["states"] = self.get_state()
+            states = torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs)
+            if self.state_history is not None:
+                states = self.state_history.reset(states, new_episode)
+            self.obs_dict["states"] = states.to(self.rl_device, copy=True)
         return self.obs_dict
 
     def _compute_checked_observations(self) -> None:
@@ -433,6 +533,8 @@ class VecTask:
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
         self.total_train_env_frames = env_frames
+        # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
+        self.randomizer.step_count.fill_(env_frames // self.num_envs)
 
     def get_env_state(self) -> None:
         return None
@@ -469,6 +571,32 @@ def solver_options(sim: dict) -> SolverOptions:
         impratio=float(sim.get("impratio", defaults.impratio)),
         enable_contacts=bool(sim.get("enableContacts", defaults.enable_contacts)),
     )
+
+
+def torque_speed_limits(cfg: dict | None, joints: list[str]) -> dict[str, tuple[float, float, float]]:
+    """``env.control.torqueSpeed`` per joint: (saturation torque, torque limit, no-load speed); {} when absent."""
+    if not cfg:
+        return {}
+    key = "env.control.torqueSpeed"
+    unknown = sorted(set(cfg) - {"saturationTorque", "torqueLimit", "velocityLimit"})
+    if unknown:
+        raise ValueError(f"{key}: unknown key(s) {unknown}; valid: saturationTorque, torqueLimit, velocityLimit")
+    for required in ("saturationTorque", "velocityLimit"):
+        if not cfg.get(required):
+            raise ValueError(f"{key}.{required} is required ({{joint pattern: value}})")
+    sat = match_joint_values(cfg["saturationTorque"], joints, f"{key}.saturationTorque")
+    speed = match_joint_values(cfg["velocityLimit"], joints, f"{key}.velocityLimit")
+    limit = match_joint_values(cfg.get("torqueLimit"), joints, f"{key}.torqueLimit")
+    out = {}
+    for j in sat:
+        if j not in speed:
+            raise ValueError(f"{key}.velocityLimit gives no value for joint '{j}', which has a saturationTorque")
+        values = (float(sat[j]), float(limit.get(j, sat[j])), float(speed[j]))
+        if not all(v > 0 for v in values):
+            raise ValueError(f"{key}: joint '{j}' has {values} (saturationTorque, torqueLimit, velocityLimit); "
+                             "each must be > 0")
+        out[j] = values
+    return out
 
 
 def _require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:

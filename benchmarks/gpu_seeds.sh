@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# On a GPU machine: train several runs of one task side by side on one GPU, then evaluate each on 1024 envs.
+# For robustness across seeds and for screening settings; wall clocks of side-by-side runs are not times to a
+# policy (the runs share the GPU): take those from gpu_policy.sh.
+# Usage: bash benchmarks/gpu_seeds.sh TASK OUTDIR "seed=1" "seed=2 task.env.x=y" ...   (one run per argument)
+set -uo pipefail
+task=$1; out=$2; shift 2
+mkdir -p "$out"
+i=0
+for args in "$@"; do
+  i=$((i + 1))
+  # shellcheck disable=SC2086
+  (timeout 560 python3 train.py task="$task" headless=True runs_dir="$out/runs$i" $args > "$out/train$i.log" 2>&1;
+   echo "rc=$?" >> "$out/train$i.log") &
+done
+wait
+i=0
+for args in "$@"; do
+  i=$((i + 1))
+  ckpt=$(ls -t "$out"/runs$i/*/*/model_*.pt 2>/dev/null | head -1)
+  if [ -z "$ckpt" ]; then echo "run $i ($args): no checkpoint"; tail -3 "$out/train$i.log"; continue; fi
+  cp "$(dirname "$ckpt")/summary.json" "$out/summary$i.json"
+  # shellcheck disable=SC2086
+  res=$(timeout 150 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 $args \
+        2>&1 | grep "\[eval\] {")
+  echo "run $i ($args): $(grep -o 'done in [0-9.]*s' "$out/train$i.log") ${res:7:400}" | tee -a "$out/evals.txt"
+done

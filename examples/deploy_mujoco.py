@@ -1,0 +1,180 @@
+"""Sim-to-sim: run an exported legged policy (policy.onnx + policy.json + model.mjb) with onnxruntime on plain MuJoCo
+(C, CPU), the way a robot runtime would: the observation is rebuilt from the metadata (term names, sizes, scales,
+history), actions become joint targets for the model's position actuators (PD), and the velocity tracking error it
+reaches for a fixed command is reported. See docs/deploy.md.
+
+    python examples/deploy_mujoco.py runs/Go1/<stamp>/exported --command 1.0 0.0 0.0 --seconds 20
+
+Prints one JSON object. Needs mujoco and onnxruntime only (not warp, not torch).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+
+def quat_rotate_inverse(quat: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """``vec`` (world frame) in the frame of the body whose orientation is ``quat`` (w, x, y, z)."""
+    inverse, out = np.zeros(4), np.zeros(3)
+    mujoco.mju_negQuat(inverse, quat)
+    mujoco.mju_rotVecQuat(out, vec, inverse)
+    return out
+
+
+class Deployment:
+    """One robot in MuJoCo C driven by an exported policy, following ``policy.json``."""
+
+    def __init__(self, export_dir: Path, model: mujoco.MjModel | None = None) -> None:
+        export_dir = Path(export_dir)
+        self.meta = json.loads((export_dir / "policy.json").read_text())
+        meta = self.meta
+        for key in ("joint_names", "default_joint_pos", "action_scale", "commands_scale"):
+            if key not in meta:
+                raise ValueError(f"{export_dir / 'policy.json'} has no '{key}': not a legged task's export")
+        self.model = model or mujoco.MjModel.from_binary_path(str(export_dir / meta["files"]["mujoco_model"]))
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        names = meta["joint_names"]
+        ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in names]
+        missing = [n for n, i in zip(names, ids) if i < 0]
+        if missing:
+            raise ValueError(f"the model has no joints {missing}")
+        self.qpos_adr = np.array([m.jnt_qposadr[i] for i in ids])
+        self.qvel_adr = np.array([m.jnt_dofadr[i] for i in ids])
+        self.ctrl_adr = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in names])
+        self.default = np.asarray(meta["default_joint_pos"], dtype=np.float64)
+        self.action_scale = float(meta["action_scale"])
+        self.clip_actions = meta["clip_actions"] or np.inf
+        self.clip_obs = meta["clip_observations"] or np.inf
+        self.decimation = int(round(meta["control_dt"] / m.opt.timestep))
+        self.command = np.zeros(3)
+        self.last_action = np.zeros(len(names))
+        obs = meta["observation"]
+        if obs["terms"] is None:
+            raise ValueError("policy.json lists no observation terms: the observation cannot be rebuilt")
+        self.terms = obs["terms"]
+        unknown = [t["name"] for t in self.terms if t["name"] not in self.term_functions()]
+        if unknown:
+            raise ValueError(f"observation terms {unknown} are not computed by this example; it knows "
+                             f"{sorted(self.term_functions())}")
+        self.history = obs["history"]
+        self.columns = np.asarray(self.history.get("columns", []), dtype=np.int64)
+        self.past: list[np.ndarray] = []  # selected columns of past frames, newest first
+
+    # ------------------------------------------------------------------ observation (as the task computes it)
+    def term_functions(self) -> dict[str, Callable[[], np.ndarray]]:
+        """Each term's raw value; ``frame()`` multiplies by the term's scale (commands: by ``commands_scale``)."""
+        d = self.data
+        quat = d.qpos[3:7]
+        return {
+            "base_lin_vel": lambda: quat_rotate_inverse(quat, d.qvel[0:3]),  # free joint: world-frame velocity
+            "base_ang_vel": lambda: d.qvel[3:6].copy(),                       # free joint: body-frame rate
+            "projected_gravity": lambda: quat_rotate_inverse(quat, np.array([0.0, 0.0, -1.0])),
+            "commands": lambda: self.command * np.asarray(self.meta["commands_scale"]),
+            "dof_pos": lambda: d.qpos[self.qpos_adr] - self.default,
+            "dof_vel": lambda: d.qvel[self.qvel_adr].copy(),
+            "actions": lambda: self.last_action.copy(),
+        }
+
+    def frame(self) -> np.ndarray:
+        """One observation frame, clipped (the task's obs_buf, noiseless)."""
+        fns = self.term_functions()
+        parts = [fns[t["name"]]() * float(t["scale"]) for t in self.terms]
+        return np.clip(np.concatenate(parts), -self.clip_obs, self.clip_obs)
+
+    def observe(self, new_episode: bool = False) -> np.ndarray:
+        """The policy input: this frame, then the selected columns of the past ``length - 1`` frames, newest first;
+        a new episode fills the past with its first frame (as the task's history buffer does)."""
+        current = self.frame()
+        length = int(self.history.get("length", 1))
+        if length == 1:
+            return current
+        selected = current[self.columns]
+        if new_episode or not self.past:
+            self.past = [selected] * (length - 1)
+        stacked = np.concatenate([current, *self.past])
+        self.past = [selected, *self.past[:-1]]
+        return stacked
+
+    # ------------------------------------------------------------------ control
+    def reset(self) -> None:
+        """The task's nominal start: base at its initial pose, joints at the default angles, at rest."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[0:3] = self.meta["base_init_pos"]
+        self.data.qpos[3:7] = self.meta["base_init_quat"]
+        self.data.qpos[self.qpos_adr] = self.default
+        self.data.ctrl[self.ctrl_adr] = self.default
+        self.last_action[:] = 0.0
+        self.past = []
+        mujoco.mj_forward(self.model, self.data)
+
+    def apply(self, action: np.ndarray) -> None:
+        """Joint targets for the position actuators, then ``decimation`` physics steps (one control period)."""
+        action = np.clip(np.asarray(action, dtype=np.float64), -self.clip_actions, self.clip_actions)
+        self.last_action[:] = action
+        self.data.ctrl[self.ctrl_adr] = self.default + self.action_scale * action
+        for _ in range(self.decimation):
+            mujoco.mj_step(self.model, self.data)
+
+
+def load_session(export_dir: Path):
+    import onnxruntime as ort
+
+    return ort.InferenceSession(str(Path(export_dir) / "policy.onnx"), providers=["CPUExecutionProvider"])
+
+
+def run(export_dir: Path, command: tuple[float, float, float], seconds: float, settle: float) -> dict:
+    """Follow ``command`` for ``seconds``; errors are means over the steps after the first ``settle`` seconds."""
+    robot, session = Deployment(export_dir), load_session(export_dir)
+    robot.reset()
+    robot.command[:] = command
+    steps = int(round(seconds / robot.meta["control_dt"]))
+    skip = int(round(settle / robot.meta["control_dt"]))
+    lin_err, yaw_err, heights, fell = [], [], [], False
+    start = robot.data.qpos[0:3].copy()
+    obs = robot.observe(new_episode=True)
+    for step in range(steps):
+        action = session.run(["actions"], {"obs": obs[None].astype(np.float32)})[0][0]
+        robot.apply(action)
+        obs = robot.observe()
+        d = robot.data
+        vel = quat_rotate_inverse(d.qpos[3:7], d.qvel[0:3])
+        up = quat_rotate_inverse(d.qpos[3:7], np.array([0.0, 0.0, -1.0]))[2]
+        fell |= bool(up > -0.5)  # tilted past 60 degrees
+        heights.append(float(d.qpos[2]))
+        if step >= skip:
+            lin_err.append(float(np.linalg.norm(robot.command[:2] - vel[:2])))  # the task's eval metric
+            yaw_err.append(abs(float(robot.command[2] - d.qvel[5])))
+    return {
+        "task": robot.meta["task"],
+        "command": list(command),
+        "seconds": seconds,
+        "settle_s": settle,
+        "lin_vel_tracking_error": float(np.mean(lin_err)) if lin_err else None,
+        "yaw_rate_tracking_error": float(np.mean(yaw_err)) if yaw_err else None,
+        "fell": fell,
+        "min_base_height": min(heights) if heights else None,
+        "distance_xy": float(np.linalg.norm(robot.data.qpos[0:2] - start[0:2])),
+        "mujoco": mujoco.__version__,
+        "trained_with": robot.meta["versions"],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("export_dir", type=Path, help="folder with policy.onnx, policy.json and model.mjb")
+    parser.add_argument("--command", type=float, nargs=3, default=(1.0, 0.0, 0.0), metavar=("VX", "VY", "YAW"))
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--settle", type=float, default=1.0, help="seconds left out of the error (start-up)")
+    args = parser.parse_args()
+    print(json.dumps(run(args.export_dir, tuple(args.command), args.seconds, args.settle)), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,128 @@
+"""Observation history: the policy (and/or critic) input stacked over the last ``length`` env steps.
+
+Configured per task under ``env.history`` (docs/config.md):
+
+    env:
+      history:
+        policy: {length: 3, terms: [dof_pos, dof_vel, actions]}   # terms: omitted = the whole vector
+        critic: {length: 2}
+
+The task still computes one frame (``numObservations`` / ``numStates`` columns, the YAML sizes). What the learner
+sees is that frame followed by the selected columns of the ``length - 1`` frames before it, newest first:
+
+    [ obs_t (all columns) | sel(obs_{t-1}) | sel(obs_{t-2}) | ... | sel(obs_{t-length+1}) ]
+
+so its size is ``n + (length - 1) * len(sel)``, and the first ``n`` columns are exactly the observation without
+history. An env whose ``reset_buf`` is set returned the first frame of a new episode: all its past frames are
+filled with that frame (nothing from the previous episode leaks in). The frames live on the device in a shift
+buffer, updated with whole-tensor ops only (no host syncs, capturable, compilable).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from isaacgymenvs_mw.tasks.base.observations import ObsLayout
+from isaacgymenvs_mw.utils.config import whole_number
+
+GROUPS = ("policy", "critic")
+
+
+@dataclass(frozen=True)
+class HistorySpec:
+    """One group's ``env.history.<group>`` section, checked."""
+
+    key: str                       # "env.history.policy", for error messages
+    length: int = 1                # frames the learner sees; 1 = no history
+    terms: tuple[str, ...] | None = None  # None: every column
+
+
+def parse_history(env: dict) -> dict[str, HistorySpec]:
+    """``env.history`` as {group: HistorySpec}; groups with length 1 are left out. Fails naming the key."""
+    section = env.get("history")
+    if section in (None, {}):
+        return {}
+    if not isinstance(section, dict):
+        raise ValueError(f"env.history={section!r} is invalid: give a mapping with keys {list(GROUPS)}")
+    unknown = [k for k in section if k not in GROUPS]
+    if unknown:
+        raise ValueError(f"env.history: unknown group(s) {unknown}; valid groups: {list(GROUPS)}")
+    out = {}
+    for group, cfg in section.items():
+        key = f"env.history.{group}"
+        if cfg is None:
+            continue
+        if not isinstance(cfg, dict):
+            raise ValueError(f"{key}={cfg!r} is invalid: give a mapping with keys ['length', 'terms']")
+        bad = [k for k in cfg if k not in ("length", "terms")]
+        if bad:
+            raise ValueError(f"{key}: unknown key(s) {bad}; valid keys: ['length', 'terms']")
+        length = whole_number(cfg.get("length", 1), f"{key}.length", 1)
+        terms = cfg.get("terms")
+        if terms is not None:
+            if isinstance(terms, str) or not all(isinstance(t, str) for t in terms) or len(terms) == 0:
+                raise ValueError(f"{key}.terms={terms!r} is invalid: give a non-empty list of observation term "
+                                 "names, or leave it out to stack the whole vector")
+            terms = tuple(terms)
+        if length > 1:
+            out[group] = HistorySpec(key, length, terms)
+    return out
+
+
+class ObsHistory:
+    """The last ``length`` frames of the selected columns of an observation vector, for every env.
+
+    Args:
+        spec: the checked YAML section.
+        size: columns of one frame (``numObservations`` or ``numStates``).
+        layout: the frame's named terms; required when ``spec.terms`` selects some.
+        num_envs, device: batch and device of the buffers.
+    """
+
+    def __init__(self, spec: HistorySpec, size: int, layout: ObsLayout | None, num_envs: int,
+                 device: torch.device | str) -> None:
+        self.spec = spec
+        self.length = spec.length
+        self.frame_size = int(size)
+        if spec.terms is None:
+            columns = torch.arange(self.frame_size)
+        elif layout is None:
+            raise ValueError(f"{spec.key}.terms={list(spec.terms)}: this task declares no observation terms "
+                             "(observation_terms()/state_terms()), so only the whole vector can be stacked; "
+                             f"leave out {spec.key}.terms")
+        else:
+            columns = layout.columns(list(spec.terms), f"{spec.key}.terms")
+        self.columns = columns.to(device)
+        self.selected = int(self.columns.numel())
+        self.size = self.frame_size + (self.length - 1) * self.selected
+        # frames[:, 0] is the newest frame's selection, frames[:, k] the one k steps before.
+        self.frames = torch.zeros(num_envs, self.length, self.selected, device=device)
+        self.out = torch.zeros(num_envs, self.size, device=device)
+
+    def describe(self) -> dict:
+        """What an exported policy needs to rebuild the stacked input on a robot."""
+        return {"length": self.length, "terms": list(self.spec.terms) if self.spec.terms else None,
+                "columns": self.columns.tolist(), "frame_size": self.frame_size, "size": self.size,
+                "order": "current frame (all columns), then the selected columns of past frames, newest first"}
+
+    def push(self, frame: torch.Tensor, new_episode: torch.Tensor) -> torch.Tensor:
+        """Add this step's frame; envs flagged in ``new_episode`` forget their past. Returns the stacked input."""
+        sel = frame.index_select(1, self.columns)
+        # Shift older frames back by one; the clone keeps the overlapping copy well defined.
+        self.frames[:, 1:] = self.frames[:, :-1].clone()
+        self.frames[:, 0] = sel
+        self.frames.copy_(torch.where(new_episode.view(-1, 1, 1), sel.unsqueeze(1), self.frames))
+        return self._stack(frame)
+
+    def reset(self, frame: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Fill every past frame of the masked envs with ``frame`` (no shift). Returns the stacked input."""
+        sel = frame.index_select(1, self.columns)
+        self.frames.copy_(torch.where(mask.view(-1, 1, 1), sel.unsqueeze(1), self.frames))
+        return self._stack(frame)
+
+    def _stack(self, frame: torch.Tensor) -> torch.Tensor:
+        self.out[:, :self.frame_size] = frame
+        self.out[:, self.frame_size:] = self.frames[:, 1:].reshape(self.out.shape[0], -1)
+        return self.out

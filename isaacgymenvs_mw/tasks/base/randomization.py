@@ -1,0 +1,503 @@
+"""Domain randomisation for every VecTask, driven by the task YAML (``task.randomize``, ``task.randomization_params``).
+
+The vocabulary is IsaacGymEnvs' where it maps: ``observations`` and ``actions`` noise, ``sim_params`` (gravity),
+``actor_params`` grouped as ``rigid_body_properties`` / ``rigid_shape_properties`` / ``dof_properties`` (plus our
+``actuator_properties``), each quantity with ``range``, ``distribution`` (uniform | gaussian | loguniform),
+``operation`` (additive | scaling) and an optional ``schedule`` (linear | constant) over ``schedule_steps`` env
+steps. Ours on top: what a quantity applies to (``bodies`` / ``geoms`` / ``joints`` / ``actuators``: names or regular
+expressions), when it is drawn (``apply``: startup | reset | interval), per-term observation noise, an action delay
+and pushes. docs/config.md lists every key.
+
+Each draw is relative to the compiled model's (nominal) value, so scaling never compounds; only the worlds that
+reset (or whose interval is due) draw; the values live in per-world Model fields on the device, and every draw is
+masked torch work (no host sync), so the step stays capturable as a CUDA graph and compilable by torch.compile.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import torch
+
+from isaacgymenvs_mw.sim import InertiaConstants, Simulator, model_names, name_matches
+from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+
+DISTRIBUTIONS = ("uniform", "gaussian", "loguniform")
+OPERATIONS = ("additive", "scaling")
+SCHEDULES = ("linear", "constant")
+APPLY = ("startup", "reset", "interval")
+SECTIONS = ("observations", "actions", "sim_params", "actor_params", "push")
+NOISE_KEYS = ("range", "distribution", "operation", "schedule", "schedule_steps")
+DRAW_KEYS = NOISE_KEYS + ("apply", "interval_s", "interval_steps")
+# Smallest value a quantity that must stay positive is given (MuJoCo Warp turns a zero friction into NaN).
+POSITIVE_FLOOR = 1e-3
+
+
+@dataclass(frozen=True)
+class Target:
+    """One Model field (or torque-speed parameter) entry a quantity writes: value * sign goes to field[..., column]."""
+
+    field: str
+    column: int | None = None
+    sign: float = 1.0
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """What an ``actor_params`` / ``sim_params`` key randomises."""
+
+    selects: str | None              # "bodies", "geoms", "joints", "actuators" or None (one per world)
+    targets: tuple[Target, ...]
+    axes: int = 0                    # 3: one draw per axis (x, y, z); 0: one per selected element
+    broadcast: int = 0               # 3: one draw per element applied to its three columns (inertia)
+    minimum: float | None = None     # None: any value; 0: >= 0; POSITIVE_FLOOR: > 0
+    limiter: bool = False            # a torque-speed parameter (env.control.torqueSpeed), not a Model field
+
+
+QUANTITIES: dict[str, dict[str, Quantity]] = {
+    "rigid_body_properties": {
+        "mass": Quantity("bodies", (Target("body_mass"),), minimum=POSITIVE_FLOOR),
+        "com": Quantity("bodies", (Target("body_ipos"),), axes=3),
+        "inertia": Quantity("bodies", (Target("body_inertia"),), broadcast=3, minimum=POSITIVE_FLOOR),
+    },
+    "rigid_shape_properties": {
+        "friction": Quantity("geoms", (Target("geom_friction", 0),), minimum=POSITIVE_FLOOR),
+    },
+    "dof_properties": {
+        "damping": Quantity("joints", (Target("dof_damping"),), minimum=0.0),
+        "armature": Quantity("joints", (Target("dof_armature"),), minimum=0.0),
+    },
+    "actuator_properties": {
+        "stiffness": Quantity("actuators", (Target("actuator_gainprm", 0), Target("actuator_biasprm", 1, -1.0)),
+                              minimum=0.0),
+        "damping": Quantity("actuators", (Target("actuator_biasprm", 2, -1.0),), minimum=0.0),
+        "gain": Quantity("actuators", (Target("actuator_gainprm", 0),)),
+        "bias": Quantity("actuators", (Target("actuator_biasprm", 0),)),
+        "saturation_torque": Quantity("actuators", (Target("saturation"),), minimum=0.0, limiter=True),
+        "torque_limit": Quantity("actuators", (Target("limit"),), minimum=0.0, limiter=True),
+        "velocity_limit": Quantity("actuators", (Target("speed"),), minimum=POSITIVE_FLOOR, limiter=True),
+    },
+}
+SIM_QUANTITIES = {"gravity": Quantity(None, (Target("opt.gravity"),), axes=3)}
+SELECTORS = ("bodies", "geoms", "joints", "actuators")
+MASS_FIELDS = ("body_mass", "body_ipos", "body_inertia", "dof_armature")
+
+
+@dataclass
+class Spec:
+    """A validated distribution: how to draw, how to combine with the nominal value, when."""
+
+    key: str
+    distribution: str
+    operation: str
+    lo: float
+    hi: float
+    schedule: str | None = None
+    schedule_steps: int = 0
+    apply: str = "reset"
+    interval: int = 0
+
+    def identity(self) -> float:
+        return 0.0 if self.operation == "additive" else 1.0
+
+
+@dataclass
+class Param:
+    """One randomised quantity bound to the model: its spec, what it writes and the nominal values."""
+
+    spec: Spec
+    quantity: Quantity
+    index: torch.Tensor                           # selected element ids (bodies, geoms, dofs, actuators)
+    nominal: torch.Tensor                         # (1, k[, 3]) nominal values of the first target
+    views: list[tuple[torch.Tensor, float]] = field(default_factory=list)  # (field view (W, ...), sign)
+
+
+def _parse_spec(raw: Any, key: str, allowed: tuple[str, ...], operations: tuple[str, ...] = OPERATIONS,
+                default_apply: str = "reset") -> Spec:
+    if not isinstance(raw, dict):
+        raise ValueError(f"{key}: expected a mapping with keys {list(allowed)}, got {raw!r}")
+    unknown = sorted(set(raw) - set(allowed))
+    if unknown:
+        raise ValueError(f"{key}: unknown key(s) {unknown}; valid keys: {list(allowed)}")
+    if "range" not in raw:
+        raise ValueError(f"{key}.range is required: [low, high] (uniform, loguniform) or [mean, std] (gaussian)")
+    try:
+        lo, hi = (float(v) for v in raw["range"])
+    except (TypeError, ValueError):
+        raise ValueError(f"{key}.range={raw['range']!r} is invalid: give two numbers") from None
+    distribution = str(raw.get("distribution", "uniform"))
+    if distribution not in DISTRIBUTIONS:
+        raise ValueError(f"{key}.distribution={distribution!r} is invalid: give one of {list(DISTRIBUTIONS)}")
+    operation = str(raw.get("operation", operations[0]))
+    if operation not in operations:
+        raise ValueError(f"{key}.operation={operation!r} is invalid: give one of {list(operations)}")
+    if distribution == "gaussian" and hi < 0:
+        raise ValueError(f"{key}.range={[lo, hi]}: a gaussian's range is [mean, std]; std must be >= 0")
+    if distribution != "gaussian" and lo > hi:
+        raise ValueError(f"{key}.range={[lo, hi]}: low > high")
+    if distribution == "loguniform" and lo <= 0:
+        raise ValueError(f"{key}.range={[lo, hi]}: a loguniform range must be > 0")
+    schedule = raw.get("schedule")
+    steps = 0
+    if schedule is not None:
+        if schedule not in SCHEDULES:
+            raise ValueError(f"{key}.schedule={schedule!r} is invalid: give one of {list(SCHEDULES)} (or leave out)")
+        steps = int(raw.get("schedule_steps", 0))
+        if steps < 1:
+            raise ValueError(f"{key}.schedule_steps must be a whole number >= 1 when {key}.schedule is set")
+    elif "schedule_steps" in raw:
+        raise ValueError(f"{key}.schedule_steps is set but {key}.schedule is not (linear or constant)")
+    apply = str(raw.get("apply", default_apply))
+    if apply not in APPLY:
+        raise ValueError(f"{key}.apply={apply!r} is invalid: give one of {list(APPLY)}")
+    return Spec(key, distribution, operation, lo, hi, schedule, steps, apply)
+
+
+def _interval_steps(raw: dict, key: str, control_dt: float) -> int:
+    given = [k for k in ("interval_s", "interval_steps") if k in raw]
+    if len(given) != 1:
+        raise ValueError(f"{key}: an interval draw needs exactly one of interval_s (seconds) or interval_steps")
+    if given[0] == "interval_s":
+        steps = int(round(float(raw["interval_s"]) / control_dt))
+    else:
+        steps = int(raw["interval_steps"])
+    if steps < 1:
+        raise ValueError(f"{key}.{given[0]}={raw[given[0]]} is less than one policy step ({control_dt} s)")
+    return steps
+
+
+class Randomizer:
+    """The randomisation layer of one VecTask: parses the YAML, binds to the model, draws on the device.
+
+    ``VecTask`` calls, in this order each step: ``before_physics`` (interval draws, pushes), ``actions`` (delay,
+    noise), the physics, the task's post-physics step (whose ``reset_idx`` is wrapped to call ``on_reset`` first),
+    ``observations`` (noise). All of it is masked torch work on the sim device.
+    """
+
+    def __init__(self, task_cfg: dict | None, control_dt: float, num_envs: int, device: torch.device) -> None:
+        task_cfg = dict(task_cfg or {})
+        self.enabled = bool(task_cfg.get("randomize", False))
+        params = dict(task_cfg.get("randomization_params") or {}) if self.enabled else {}
+        root = "task.randomization_params"
+        unknown = sorted(set(params) - set(SECTIONS))
+        if unknown:
+            raise ValueError(f"{root}: unknown section(s) {unknown}; valid sections: {list(SECTIONS)}")
+        self.root, self.control_dt, self.num_envs, self.device = root, control_dt, num_envs, device
+        self.raw = params
+        self.obs_noise, self.obs_terms = self._parse_noise("observations", extra=("terms",))
+        self.action_noise, delay_raw = self._parse_noise("actions", extra=("delay",))
+        self.delay_spec = None
+        if delay_raw is not None:
+            self.delay_spec = _parse_spec(delay_raw, f"{root}.actions.delay", DRAW_KEYS, operations=("additive",))
+            if self.delay_spec.distribution != "uniform" or self.delay_spec.lo < 0 \
+                    or self.delay_spec.lo != int(self.delay_spec.lo) or self.delay_spec.hi != int(self.delay_spec.hi):
+                raise ValueError(f"{root}.actions.delay: give range: [low, high] of whole policy steps >= 0 with "
+                                 "distribution: uniform (every whole number in the range is equally likely)")
+            self._set_interval(self.delay_spec, delay_raw)
+        self.push_spec = None
+        if "push" in params:
+            raw = params["push"]
+            self.push_spec = _parse_spec(raw, f"{root}.push", NOISE_KEYS + ("interval_s", "interval_steps"),
+                                         operations=("set", "additive"), default_apply="interval")
+            self.push_spec.interval = _interval_steps(raw, f"{root}.push", control_dt)
+        # Model quantities: (spec, quantity, selector patterns), bound to the model in bind().
+        self.entries: list[tuple[Spec, Quantity, list[str] | None, str | None]] = []
+        for name, raw in dict(params.get("sim_params") or {}).items():
+            key = f"{root}.sim_params.{name}"
+            if name not in SIM_QUANTITIES:
+                raise ValueError(f"{key}: unknown parameter; valid: {list(SIM_QUANTITIES)}")
+            self._add_entry(raw, key, SIM_QUANTITIES[name])
+        for group, quantities in dict(params.get("actor_params") or {}).items():
+            if group not in QUANTITIES:
+                raise ValueError(f"{root}.actor_params.{group}: unknown group; valid: {list(QUANTITIES)}")
+            for name, raw in dict(quantities or {}).items():
+                key = f"{root}.actor_params.{group}.{name}"
+                if name not in QUANTITIES[group]:
+                    hint = (" (a position drive's gains are actuator_properties.stiffness / damping)"
+                            if group == "dof_properties" and name == "stiffness" else "")
+                    raise ValueError(f"{key}: unknown parameter; valid in {group}: "
+                                     f"{list(QUANTITIES[group])}{hint}")
+                for i, item in enumerate(raw if isinstance(raw, list) else [raw]):
+                    self._add_entry(item, key if not isinstance(raw, list) else f"{key}[{i}]",
+                                    QUANTITIES[group][name])
+        self.params: list[Param] = []
+        self.sim: Simulator | None = None
+        self.step_count = torch.zeros((), device=device, dtype=torch.float32)
+        self.term_noise: torch.Tensor | None = None
+        self.max_delay = 0
+
+    # ------------------------------------------------------------------ parsing
+    def _parse_noise(self, section: str, extra: tuple[str, ...]) -> tuple[Spec | None, Any]:
+        raw = self.raw.get(section)
+        if raw is None:
+            return None, None
+        key = f"{self.root}.{section}"
+        if not isinstance(raw, dict):
+            raise ValueError(f"{key}: expected a mapping, got {raw!r}")
+        noise = {k: v for k, v in raw.items() if k not in extra}
+        spec = _parse_spec(noise, key, NOISE_KEYS) if noise else None
+        extras = [raw.get(k) for k in extra]
+        return spec, (extras[0] if extras else None)
+
+    def _set_interval(self, spec: Spec, raw: dict) -> None:
+        if spec.apply == "interval":
+            spec.interval = _interval_steps(raw, spec.key, self.control_dt)
+        elif "interval_s" in raw or "interval_steps" in raw:
+            raise ValueError(f"{spec.key}: interval_s / interval_steps need apply: interval")
+
+    def _add_entry(self, raw: Any, key: str, quantity: Quantity) -> None:
+        allowed = DRAW_KEYS + ((quantity.selects,) if quantity.selects else ())
+        if quantity.selects == "geoms":
+            allowed += ("bodies",)
+        spec = _parse_spec(raw, key, allowed)
+        self._set_interval(spec, raw)
+        if quantity.minimum is not None:
+            self._check_positive(spec, quantity)
+        selector = None
+        patterns = None
+        for name in SELECTORS:
+            if name in raw and name in allowed:
+                if selector is not None:
+                    raise ValueError(f"{key}: give either {selector} or {name}, not both")
+                selector, value = name, raw[name]
+                patterns = [value] if isinstance(value, str) else [str(v) for v in value]
+        self.entries.append((spec, quantity, patterns, selector))
+
+    @staticmethod
+    def _check_positive(spec: Spec, quantity: Quantity) -> None:
+        """A quantity that must stay >= 0 (> 0) may not be given a range that takes it below."""
+        what = "> 0" if quantity.minimum > 0 else ">= 0"
+        if spec.operation == "scaling":
+            low = spec.lo if spec.distribution != "gaussian" else spec.lo - 3.0 * spec.hi
+            if low < 0 or (quantity.minimum > 0 and low <= 0):
+                raise ValueError(f"{spec.key}.range={[spec.lo, spec.hi]}: this quantity must stay {what}; a scaling "
+                                 "range must be > 0 (gaussian: mean - 3 std > 0)")
+        # additive ranges are checked against the nominal values in bind()
+
+    # ------------------------------------------------------------------ binding
+    def per_world_fields(self) -> tuple[str, ...]:
+        """Model fields the simulator must batch per world for the configured quantities."""
+        fields: list[str] = []
+        for _, quantity, _, _ in self.entries:
+            fields += [t.field for t in quantity.targets if not quantity.limiter]
+        if any(f in MASS_FIELDS for f in fields):
+            fields += ["body_invweight0", "dof_invweight0"]
+        return tuple(dict.fromkeys(fields))
+
+    def bind(self, sim: Simulator) -> None:
+        """Resolve names against the compiled model, check the ranges against the nominal values, draw startup."""
+        self.sim = sim
+        m = sim.mj_model
+        written: dict[tuple[str, int | None, int], str] = {}
+        for spec, quantity, patterns, selector in self.entries:
+            index = self._select(m, spec.key, quantity, patterns, selector)
+            param = Param(spec, quantity, index, nominal=torch.empty(0))
+            for target in quantity.targets:
+                view, host = self._target_view(sim, spec.key, quantity, target)
+                for i in index.tolist():
+                    clash = written.get((target.field, target.column, i))
+                    if clash is not None:
+                        raise ValueError(f"{spec.key} and {clash} both randomise {target.field}"
+                                         f"{'' if target.column is None else f'[{target.column}]'} of the same "
+                                         "element; select disjoint elements")
+                    written[(target.field, target.column, i)] = spec.key
+                param.views.append((view, target.sign))
+                if param.nominal.numel() == 0:
+                    param.nominal = (host[:1, index] * target.sign).clone()
+            if quantity.minimum is not None and spec.operation == "additive" and spec.distribution != "gaussian":
+                low = float((param.nominal + spec.lo).min())
+                if low < quantity.minimum or (quantity.minimum > 0 and low <= 0):
+                    raise ValueError(f"{spec.key}.range={[spec.lo, spec.hi]}: this quantity must stay "
+                                     f"{'> 0' if quantity.minimum > 0 else '>= 0'}, but nominal + low = {low:.4g}")
+            self.params.append(param)
+        self.inertia = (InertiaConstants(m, sim.device)
+                        if any(t.field in MASS_FIELDS for p in self.params for t in p.quantity.targets) else None)
+        everyone = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+        self._draw_params(everyone, "startup")
+
+    def _select(self, m, key: str, quantity: Quantity, patterns: list[str] | None, selector: str | None):
+        if quantity.selects is None:
+            return torch.zeros(1, dtype=torch.long, device=self.device)
+        kind = selector or quantity.selects
+        names, ids = model_names(m, kind, for_geoms=quantity.selects == "geoms")
+        if patterns is None:
+            chosen = list(range(len(names)))
+        else:
+            chosen = []
+            for pattern in patterns:
+                chosen += [i for i in name_matches(pattern, names, f"{key}.{kind}", kind) if i not in chosen]
+        element = [ids[i] for i in chosen]
+        if kind == "bodies" and quantity.selects == "geoms":
+            element = [g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in element]
+        elif kind == "joints":
+            element = [int(m.jnt_dofadr[j]) for j in element]
+        return torch.tensor(sorted(set(element)), dtype=torch.long, device=self.device)
+
+    def _target_view(self, sim: Simulator, key: str, quantity: Quantity, target: Target):
+        """(per-world view (W, n[, 3]) to write, its nominal values) of one target."""
+        if quantity.limiter:
+            if sim.torque_speed is None:
+                raise ValueError(f"{key}: the drives have no torque-speed limit; set env.control.torqueSpeed")
+            view = getattr(sim.torque_speed, target.field)
+            return view, view[:1].clone()
+        full = sim.model_field(target.field)
+        if full.shape[0] != self.num_envs:
+            raise RuntimeError(f"{key}: Model field {target.field} is not batched per world")
+        view = full if target.column is None else full[..., target.column]
+        if target.field == "opt.gravity":
+            view = full.unsqueeze(1)  # (W, 1, 3): one "element", three axes
+        return view, view[:1].clone()
+
+    # -------------------------------------------------------------- drawing
+    def _schedule(self, spec: Spec) -> torch.Tensor | float:
+        if spec.schedule is None:
+            return 1.0
+        if spec.schedule == "linear":
+            return torch.clamp(self.step_count / spec.schedule_steps, max=1.0)
+        return (self.step_count >= spec.schedule_steps).float()
+
+    def sample(self, spec: Spec, shape: tuple[int, ...]) -> torch.Tensor:
+        """Draws of ``spec`` before combination with a nominal value; a schedule shrinks them towards identity."""
+        if spec.distribution == "uniform":
+            x = spec.lo + (spec.hi - spec.lo) * torch.rand(shape, device=self.device)
+        elif spec.distribution == "gaussian":
+            x = spec.lo + spec.hi * torch.randn(shape, device=self.device)
+        else:
+            log_lo, log_hi = math.log(spec.lo), math.log(spec.hi)
+            x = torch.exp(log_lo + (log_hi - log_lo) * torch.rand(shape, device=self.device))
+        if spec.schedule is not None:
+            ident = spec.identity()
+            x = ident + self._schedule(spec) * (x - ident)
+        return x
+
+    @staticmethod
+    def combine(spec: Spec, nominal: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        return nominal + x if spec.operation in ("additive", "set") else nominal * x
+
+    def _draw_params(self, mask: torch.Tensor, when: str) -> None:
+        touched_mass = False
+        for p in self.params:
+            if p.spec.apply != when and not (when == "startup" and p.spec.apply == "reset"):
+                continue
+            self._draw_param(p, mask)
+            touched_mass |= any(t.field in MASS_FIELDS for t in p.quantity.targets)
+        if touched_mass:
+            self._update_inertia_constants(mask)
+
+    def _draw_param(self, p: Param, mask: torch.Tensor) -> None:
+        q = p.quantity
+        k = p.index.numel()
+        shape = (self.num_envs, k, q.axes) if q.axes else (self.num_envs, k, 1) if q.broadcast else \
+            (self.num_envs, k)
+        value = self.combine(p.spec, p.nominal, self.sample(p.spec, shape))
+        if q.minimum is not None:
+            value = torch.clamp(value, min=q.minimum)
+        rows = mask.view((-1,) + (1,) * (value.dim() - 1))
+        for view, sign in p.views:
+            current = view[:, p.index]
+            view[:, p.index] = torch.where(rows, (value * sign).expand_as(current), current)
+
+    def _update_inertia_constants(self, mask: torch.Tensor) -> None:
+        if self.inertia is None:
+            return
+        f = self.sim.model_field
+        body, dof = self.inertia.compute(*(f(n).expand(self.num_envs, *f(n).shape[1:]) for n in MASS_FIELDS))
+        for name, value in (("body_invweight0", body), ("dof_invweight0", dof)):
+            view = f(name)
+            view.copy_(torch.where(mask.view((-1,) + (1,) * (value.dim() - 1)), value, view))
+
+    # ------------------------------------------------------------- per step
+    def with_term_noise(self, layout: ObsLayout) -> ObsLayout:
+        """The task's policy layout with ``observations.terms`` noise added to its terms' own (per-column noise)."""
+        terms = dict(self.obs_terms or {})
+        unknown = [n for n in terms if n not in layout.slices]
+        if unknown:
+            raise ValueError(f"{self.root}.observations.terms: unknown observation term(s) {unknown}; "
+                             f"terms of this task: {layout.names}")
+        bad = [n for n, v in terms.items() if not float(v) >= 0]
+        if bad:
+            raise ValueError(f"{self.root}.observations.terms: noise of {bad} must be >= 0")
+        layout = ObsLayout([ObsTerm(t.name, t.size, t.scale, t.noise + float(terms.get(t.name, 0.0)) * abs(t.scale))
+                            for t in layout.terms])
+        scale = layout.noise_scale(self.device)
+        self.term_noise = scale if bool((scale != 0).any()) else None
+        return layout
+
+    def on_reset(self, mask: torch.Tensor) -> None:
+        """Draw the reset-time quantities of the resetting worlds and clear their action history."""
+        self._draw_params(mask, "reset")
+        if self.max_delay:
+            self.action_history.masked_fill_(mask.view(1, -1, 1), 0.0)
+            if self.delay_spec is not None and self.delay_spec.apply == "reset":
+                self._draw_delay(mask)
+
+    def before_physics(self, progress: torch.Tensor) -> None:
+        """Interval draws and pushes for the worlds whose interval is due (by their episode's step count)."""
+        for p in self.params:
+            if p.spec.apply == "interval":
+                due = (progress % p.spec.interval == 0) & (progress > 0)
+                self._draw_param(p, due)
+                if any(t.field in MASS_FIELDS for t in p.quantity.targets):
+                    self._update_inertia_constants(due)
+        if self.delay_spec is not None and self.delay_spec.apply == "interval":
+            self._draw_delay((progress % self.delay_spec.interval == 0) & (progress > 0))
+        if self.push_spec is not None:
+            due = ((progress % self.push_spec.interval == 0) & (progress > 0)).unsqueeze(1)
+            vel = self.sim.root_lin_vel[:, :2]
+            kick = self.sample(self.push_spec, (self.num_envs, 2))
+            new = kick if self.push_spec.operation == "set" else vel + kick
+            vel.copy_(torch.where(due, new, vel))
+
+    def actions(self, actions: torch.Tensor) -> torch.Tensor:
+        """The actions that reach the task this step: delayed by each env's delay, then noised."""
+        if self.max_delay:
+            self.history_head.add_(1).remainder_(self.max_delay + 1)
+            self.action_history.index_copy_(0, self.history_head.view(1), actions.unsqueeze(0))
+            slot = (self.history_head - self.delay).remainder(self.max_delay + 1)
+            actions = self.action_history.gather(0, slot.view(1, -1, 1).expand(1, *actions.shape)).squeeze(0)
+        if self.action_noise is not None:
+            actions = self.combine(self.action_noise, actions, self.sample(self.action_noise, actions.shape))
+        return actions
+
+    def observations(self, obs: torch.Tensor) -> None:
+        """Add the per-term and the section-wide observation noise to the policy observation, in place."""
+        if self.term_noise is not None:
+            obs += (2.0 * torch.rand_like(obs) - 1.0) * self.term_noise
+        if self.obs_noise is not None:
+            obs.copy_(self.combine(self.obs_noise, obs, self.sample(self.obs_noise, obs.shape)))
+
+    def count_step(self) -> None:
+        self.step_count += 1.0
+
+    # ---------------------------------------------------------------- delay
+    def setup_delay(self, nominal: int, num_actions: int) -> None:
+        """Allocate the action ring buffer: ``nominal`` (env.control.actionDelay) plus the randomised range."""
+        if nominal < 0:
+            raise ValueError(f"env.control.actionDelay={nominal} is invalid: give a whole number of policy steps >= 0")
+        self.nominal_delay = int(nominal)
+        self.max_delay = self.nominal_delay + (int(self.delay_spec.hi) if self.delay_spec is not None else 0)
+        self.delay = torch.full((self.num_envs,), self.nominal_delay, dtype=torch.long, device=self.device)
+        if self.max_delay:
+            self.action_history = torch.zeros((self.max_delay + 1, self.num_envs, num_actions), device=self.device)
+            self.history_head = torch.zeros((), dtype=torch.long, device=self.device)
+            if self.delay_spec is not None:
+                self._draw_delay(torch.ones(self.num_envs, dtype=torch.bool, device=self.device))
+
+    def _draw_delay(self, mask: torch.Tensor) -> None:
+        lo, hi = int(self.delay_spec.lo), int(self.delay_spec.hi)
+        new = self.nominal_delay + torch.randint(lo, hi + 1, (self.num_envs,), device=self.device)
+        self.delay.copy_(torch.where(mask, new, self.delay))
+
+
+def wrap_reset(task: Any, on_reset: Callable[[torch.Tensor], None]) -> None:
+    """Make ``task.reset_idx`` draw the resetting worlds' randomised values before the task's own reset runs."""
+    task_reset_idx = task.reset_idx
+
+    def reset_idx(env_ids: torch.Tensor) -> None:
+        mask = task.env_mask(env_ids)
+        on_reset(mask)
+        task_reset_idx(mask)
+
+    task.reset_idx = reset_idx

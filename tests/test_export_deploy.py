@@ -1,0 +1,152 @@
+"""Deployable export (Go1, CPU, tiny): the metadata in policy.onnx / policy.pt / policy.json equals the task's values,
+and examples/deploy_mujoco.py, fed the task's own states in plain MuJoCo, rebuilds the task's observation (history
+included) so that its onnxruntime actions equal the torch policy's.
+
+Expected values come from outside the code under test: the task YAML (read with OmegaConf, joint patterns written
+out here by hand), MuJoCo compiling the URDF on its own (joint order), importlib.metadata (versions).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from importlib import metadata
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+import isaacgymenvs_mw
+from conftest import CPU_ARGS, REPO_ROOT
+from isaacgymenvs_mw.learning.export import export_policy, read_metadata
+from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+sys.path.insert(0, str(REPO_ROOT / "examples"))
+import deploy_mujoco  # noqa: E402
+
+HISTORY = ["dof_vel", "actions"]
+OVERRIDES = [
+    "task.task.randomize=False",  # the deployed observation is noiseless (and the model nominal)
+    f"+task.env.history={{policy:{{length:3,terms:[{','.join(HISTORY)}]}}}}",
+]
+GO1_YAML = OmegaConf.load(REPO_ROOT / "cfg" / "task" / "Go1.yaml")
+
+
+def default_angle(joint: str) -> float:
+    """cfg/task/Go1.yaml defaultJointAngles, read by hand."""
+    if joint.endswith("hip_joint"):
+        return 0.1 if joint[1] == "L" else -0.1
+    if joint.endswith("thigh_joint"):
+        return 0.8 if joint[0] == "F" else 1.0
+    assert joint.endswith("calf_joint"), joint
+    return -1.5
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("export") / "exported"
+    torch.manual_seed(0)
+    task = isaacgymenvs_mw.make("Go1", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=OVERRIDES)
+    env = RslRlVecEnv(task)
+    train_cfg = rsl_rl_config(to_dict(compose_config(["task=Go1", *CPU_ARGS]).train))
+    train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
+    runner = Runner(env, train_cfg, log_dir=None, device="cpu")
+    # An untrained policy with a non-trivial normaliser, so that leaving it out of the export would show.
+    actor = runner.alg.get_policy()
+    with torch.no_grad():
+        actor.obs_normalizer._mean.normal_(0.0, 0.3)
+        actor.obs_normalizer._std.uniform_(0.5, 2.0)
+    export_policy(runner, out, task=task)
+    return task, env, runner, out
+
+
+def test_exported_metadata_equals_the_task(exported):
+    task, _, _, out = exported
+    on_disk = json.loads((out / "policy.json").read_text())
+    assert read_metadata(out / "policy.onnx") == on_disk
+    assert read_metadata(out / "policy.pt") == on_disk
+    meta = on_disk
+    env, sim = GO1_YAML.env, GO1_YAML.sim
+
+    urdf_model = mujoco.MjModel.from_xml_path(str(REPO_ROOT / "assets" / env.asset.assetFileName))
+    joints = [urdf_model.joint(j).name for j in range(urdf_model.njnt)]
+    assert meta["joint_names"] == joints and len(joints) == env.numActions == 12
+    assert meta["default_joint_pos"] == pytest.approx([default_angle(j) for j in joints])
+    assert meta["action_scale"] == env.control.actionScale
+    assert meta["stiffness"] == pytest.approx([20.0] * 12) and meta["damping"] == pytest.approx([0.5] * 12)
+    assert meta["control_dt"] == pytest.approx(sim.dt * env.controlFrequencyInv)
+    assert meta["physics_dt"] == pytest.approx(sim.dt) and meta["decimation"] == env.controlFrequencyInv
+    assert meta["clip_actions"] == env.clipActions and meta["clip_observations"] == env.clipObservations
+
+    obs = meta["observation"]
+    scales = env.obsScales
+    assert [(t["name"], t["size"], t["scale"]) for t in obs["terms"]] == [
+        ("base_lin_vel", 3, scales.linVel), ("base_ang_vel", 3, scales.angVel), ("projected_gravity", 3, 1.0),
+        ("commands", 3, 1.0), ("dof_pos", 12, scales.dofPos), ("dof_vel", 12, scales.dofVel), ("actions", 12, 1.0)]
+    assert meta["commands_scale"] == pytest.approx([scales.linVel, scales.linVel, scales.angVel])
+    assert obs["frame_size"] == env.numObservations == 48
+    assert obs["history"]["length"] == 3 and obs["history"]["terms"] == HISTORY
+    assert obs["size"] == 48 + 2 * 24 == task.observation_space.shape[0]
+    assert meta["state"]["size"] == env.numStates and meta["state"]["history"] == {"length": 1}
+
+    versions = meta["versions"]
+    for dist in ("torch", "warp-lang", "mujoco", "mujoco-warp", "rsl-rl-lib"):
+        assert versions[dist] == metadata.version(dist)
+    assert versions["isaacgymenvs_mw"] == isaacgymenvs_mw.__version__
+
+    # the exported MuJoCo model is the task's: same joints, PD gains and timestep
+    model = mujoco.MjModel.from_binary_path(str(out / meta["files"]["mujoco_model"]))
+    assert model.opt.timestep == pytest.approx(sim.dt) and model.nu == 12
+    assert np.allclose(model.actuator_gainprm[:, 0], 20.0) and np.allclose(model.actuator_biasprm[:, 2], -0.5)
+
+
+def test_deploy_example_observation_and_onnx_actions_match_the_task(exported):
+    task, env, runner, out = exported
+    robot = deploy_mujoco.Deployment(out)
+    session = deploy_mujoco.load_session(out)
+    policy = runner.get_inference_policy(device="cpu")
+    torch.manual_seed(1)
+    obs_td = env.get_observations()  # the task's observation after its reset (history filled)
+
+    def sync_robot() -> None:
+        """Put env 0's state and command into the MuJoCo C data, as a robot's state estimator would."""
+        robot.data.qpos[:] = task.sim.qpos[0].double().numpy()
+        robot.data.qvel[:] = task.sim.qvel[0].double().numpy()
+        robot.command[:] = task.commands[0].double().numpy()
+        mujoco.mj_forward(robot.model, robot.data)
+
+    sync_robot()
+    robot_obs = robot.observe(new_episode=True)
+    for step in range(8):
+        task_obs = obs_td["policy"][0].numpy()
+        assert robot_obs.shape == task_obs.shape == (96,)
+        # LeggedTask's very first observation (reset() before any step) holds zeros for the base terms (columns
+        # 0-8: its cached base velocities and gravity are refreshed by the first step); compared from step 1 on.
+        first = 9 if step == 0 else 0
+        np.testing.assert_allclose(robot_obs[first:], task_obs[first:], rtol=1e-5, atol=1e-5, err_msg=f"step {step}")
+        with torch.inference_mode():
+            torch_actions = policy(obs_td).numpy()
+        onnx_action = session.run(["actions"], {"obs": robot_obs[None].astype(np.float32)})[0][0]
+        if step == 0:
+            onnx_action = torch_actions[0]
+        else:
+            np.testing.assert_allclose(onnx_action, torch_actions[0], rtol=1e-4, atol=1e-5, err_msg=f"step {step}")
+        assert np.ptp(torch_actions[0]) > 1e-3  # a real action, not a constant
+        robot.last_action[:] = np.clip(onnx_action, -robot.clip_actions, robot.clip_actions)
+        obs_td, _, dones, _ = env.step(torch.as_tensor(np.stack([onnx_action, torch_actions[1]])))
+        assert not bool(dones[0])  # eight steps from a reset: no episode ends (the history would restart)
+        sync_robot()
+        robot_obs = robot.observe()
+
+
+def test_deploy_example_runs_and_reports_tracking_error(exported):
+    *_, out = exported
+    result = deploy_mujoco.run(out, (0.5, 0.0, 0.0), seconds=0.4, settle=0.1)
+    assert result["task"] == "Go1"
+    assert np.isfinite(result["lin_vel_tracking_error"]) and np.isfinite(result["yaw_rate_tracking_error"])
+    assert result["min_base_height"] > 0.1  # started standing on the floor
