@@ -4,6 +4,8 @@ python train.py task=Cartpole test=True checkpoint=runs/Cartpole/<stamp>/model_6
 python train.py --config-dir /my/project/cfg task=MyTask task_module=my_tasks   a task from outside the repository.
 """
 
+import signal
+import sys
 import time
 
 _STARTED_AT = time.perf_counter()
@@ -22,7 +24,12 @@ def main(cfg: DictConfig) -> None:
     from isaacgymenvs_mw.utils.config import record_task_dir
 
     record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the task YAML's folder
-    run(cfg, started_at=_STARTED_AT)
+    try:
+        run(cfg, started_at=_STARTED_AT)
+    except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: the run saved its checkpoint and summary
+        signum = int(getattr(err, "signum", signal.SIGINT))
+        print(f"[train] stopped by {signal.Signals(signum).name}", file=sys.stderr, flush=True)
+        sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
 
 
 if __name__ == "__main__":

@@ -189,3 +189,35 @@ def test_train_and_test_mode_capture_video(tmp_path):
     assert sorted(p.name for p in (run_dir / "videos_eval").iterdir()) == ["video_1.mp4"]
     frames, _ = read_video(run_dir / "videos_eval" / "video_1.mp4")
     assert frames.shape == (4, 480, 640, 3) and drawn(frames[-1])
+
+
+GL_ATTEMPTS = """
+import isaacgymenvs_mw
+from isaacgymenvs_mw.sim.video import VideoRecorder
+
+task = isaacgymenvs_mw.make("Cartpole", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True)
+messages = []
+for attempt in range(2):
+    try:
+        VideoRecorder(task.sim, "videos", fps=50.0, width=64, height=48)
+    except RuntimeError as err:
+        messages.append(str(err))
+assert len(messages) == 2, messages
+assert messages[0] == messages[1], messages
+print("GL-ERROR:", messages[0])
+"""
+
+
+def test_unusable_gl_backend_gives_the_same_clear_error_twice_and_no_abort(tmp_path):
+    # GLFW without a display cannot start; MuJoCo aborts the whole process when asked a second time
+    # ("Fatal Python error: Aborted"). The recorder must say so twice, in the same words, and the process go on.
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env.update(MUJOCO_GL="glfw", PYTHONPATH=str(REPO_ROOT), OMP_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, "-c", GL_ATTEMPTS], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300, env=env)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    assert "Fatal Python error" not in out and "Aborted" not in out
+    (line,) = [ln for ln in proc.stdout.splitlines() if ln.startswith("GL-ERROR:")]
+    assert "MUJOCO_GL='glfw'" in line and "libosmesa6" in line and "MUJOCO_GL=egl" in line
+    assert not (tmp_path / "videos").exists()

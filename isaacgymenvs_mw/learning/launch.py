@@ -6,7 +6,9 @@ import datetime
 import importlib
 import json
 import os
+import signal
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -24,7 +26,8 @@ from isaacgymenvs_mw.learning.runner import (
 )
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.tasks import get_task_class
-from isaacgymenvs_mw.utils.config import check_run_config, to_dict
+from isaacgymenvs_mw.sim import set_verbose
+from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_dict
 from isaacgymenvs_mw.utils.device import check_device_pair, resolve_device
 from isaacgymenvs_mw.utils.seeding import set_seed
 
@@ -32,6 +35,7 @@ from isaacgymenvs_mw.utils.seeding import set_seed
 def build_task(cfg: DictConfig):
     """Construct the task named by ``cfg.task_name`` on the configured devices."""
     check_run_config(cfg)
+    set_verbose(cfg.get("verbose", False))
     if cfg.get("task_module"):
         importlib.import_module(cfg.task_module)
     task_class = get_task_class(cfg.task_name)
@@ -63,10 +67,12 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     if not cfg.test:
         check_logger(train_cfg)
     checkpoint = _checkpoint_path(cfg)
+    if not cfg.test and rank == 0:
+        check_runs_dir(cfg.runs_dir)
 
     task = build_task(cfg)
     env = RslRlVecEnv(task)
-    experiment = train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name
+    experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
     max_iterations = int(train_cfg.pop("max_iterations"))
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     run_dir = Path(cfg.runs_dir) / experiment / stamp
@@ -76,7 +82,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     if cfg.test:
         if videos:
             _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval")
-        runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
+        runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
         _load(runner, checkpoint, task)
         policy = runner.get_inference_policy(device=task.rl_device)
         onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported", task=task)
@@ -92,7 +98,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         _leave_process_group(runner)
         return result
 
-    runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
+    runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
     if checkpoint is not None:
         _load(runner, checkpoint, task)
         print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
@@ -106,7 +112,13 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
           f"{max_iterations} iterations, run dir {run_dir}", flush=True)
     start_it = runner.current_learning_iteration
-    runner.learn(max_iterations, init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
+    interrupted: KeyboardInterrupt | None = None
+    with _terminate_as_interrupt():
+        try:
+            runner.learn(max_iterations,
+                         init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
+        except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM from a scheduler: Runner.learn has saved the model
+            interrupted = err
 
     wall = time.perf_counter() - started_at
     means = runner.recent_means()
@@ -128,14 +140,19 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         "device": device_description(task.sim_device),
         "versions": package_versions(),
         "run_dir": str(run_dir),
+        "interrupted": interrupted is not None,
+        "signal": None if interrupted is None else signal.Signals(_signal_number(interrupted)).name,
         "history": runner.history,
     }
     if is_main:
         write_json(run_dir / "summary.json", summary)
-        print(f"[train] done in {wall:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
+        ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
+        print(f"[train] {ended} {wall:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
               f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
     task.close()
     _leave_process_group(runner)
+    if interrupted is not None:
+        raise interrupted  # train.py turns it into exit status 128 + signal number
     return summary
 
 
@@ -143,6 +160,40 @@ def seed_run(cfg: DictConfig, rank: int = 0) -> int:
     """Seed the run; ``deterministic=True`` implies ``torch_deterministic`` (bit-identical training needs both)."""
     deterministic = bool(cfg.get("deterministic", False))
     return set_seed(int(cfg.seed), bool(cfg.torch_deterministic) or deterministic, rank=rank)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (cluster schedulers' preemption or time limit) raised where the run is, as Ctrl-C raises
+    KeyboardInterrupt: the same checkpoint and summary are written."""
+
+    signum = signal.SIGTERM
+
+
+def _signal_number(err: KeyboardInterrupt) -> int:
+    return int(getattr(err, "signum", signal.SIGINT))
+
+
+@contextmanager
+def _terminate_as_interrupt():
+    """While training, SIGTERM raises ``Terminated`` (once: a second one while the checkpoint is written is
+    ignored, so that the file is whole). Only the main thread can handle signals; elsewhere nothing changes."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = []
+
+    def handler(signum, frame):
+        if not fired:
+            fired.append(signum)
+            raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _leave_process_group(runner: Runner) -> None:

@@ -7,6 +7,8 @@ once per iteration), each iteration prints one line, and every run leaves summar
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import platform
@@ -21,6 +23,7 @@ from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.utils.config import check_train_config
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")
 
@@ -30,6 +33,7 @@ def rsl_rl_config(train_cfg: dict) -> dict:
     missing = [s for s in TRAIN_SECTIONS if s not in train_cfg]
     if missing:
         raise ValueError(f"train config lacks section(s) {missing}; expected {list(TRAIN_SECTIONS)}")
+    check_train_config(train_cfg)
     runner = dict(train_cfg["runner"])
     for key in ("num_steps_per_env", "max_iterations", "save_interval", "obs_groups"):
         if key not in runner:
@@ -57,8 +61,11 @@ def device_description(device: str) -> str:
 class Runner(OnPolicyRunner):
     """OnPolicyRunner with a sync-free rollout, one progress line per iteration, and a run summary."""
 
-    def __init__(self, env: RslRlVecEnv, train_cfg: dict, log_dir: str | None, device: str) -> None:
-        super().__init__(env, train_cfg, log_dir=log_dir, device=device)
+    def __init__(self, env: RslRlVecEnv, train_cfg: dict, log_dir: str | None, device: str,
+                 verbose: bool = False) -> None:
+        # rsl_rl prints the observation groups and both networks layer by layer; only verbose runs show that.
+        with contextlib.nullcontext() if verbose else contextlib.redirect_stdout(io.StringIO()):
+            super().__init__(env, train_cfg, log_dir=log_dir, device=device)
         self.log_dir = log_dir
         self.is_main = not self.is_distributed or self.gpu_global_rank == 0
         self.recent: deque[dict[str, float]] = deque(maxlen=5)  # last iterations' episode stats
@@ -166,11 +173,14 @@ class Runner(OnPolicyRunner):
         if stats["nonfinite_resets"]:
             print(f"[it {it + 1:>5}] {int(stats['nonfinite_resets'])} env(s) had NaN/inf simulator state and were "
                   f"reset ({self.nonfinite_resets} so far)", flush=True)
-        rew = f"{stats['mean_episode_reward']:9.2f}" if stats["episodes"] else "        -"
-        length = f"{stats['mean_episode_length']:7.1f}" if stats["episodes"] else "      -"
+        if stats["episodes"]:
+            episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
+        else:  # a host read, but only on iterations where no episode ended
+            longest = int(env.episode_length_buf.max())
+            episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
         print(
             f"[it {it + 1:>5}/{last_it}] steps {self.total_env_steps:>11,} | {fps:>10,.0f} steps/s | "
-            f"ep_rew {rew} | ep_len {length} | value_loss {losses.get('value', float('nan')):8.4f} | "
+            f"{episodes} | value_loss {losses.get('value', float('nan')):8.4f} | "
             f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s",
             flush=True,
         )

@@ -40,6 +40,7 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     movable_joint_names,
     name_matches,
 )
+from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
 from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 
@@ -59,5 +60,6 @@ __all__ = [
     "match_joint_values",
     "model_names",
     "movable_joint_names",
+    "set_verbose",
     "name_matches",
 ]

@@ -19,6 +19,7 @@ import warp as wp
 
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
+from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
 
 # Overflow bits we report, and the task YAML key that fixes each.
 _OVERFLOW_KEYS = {
@@ -36,7 +37,7 @@ class ContactSensor:
 
 
 def _wp_device(device: str) -> wp.context.Device:
-    wp.init()
+    init_warp(device)
     return wp.get_device(device)
 
 
@@ -96,12 +97,22 @@ class Simulator:
             # Set before anything is compiled or captured: the bits select the kernels (Warp module options).
             self.model.opt.deterministic = int(mjw.DeterminismType.ALL if deterministic else mjw.DeterminismType.NONE)
             self.data = mjw.make_data(mj_model, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
+        self._load_kernels(nconmax, njmax)
 
         self._bind_views()
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._graphs: dict[str, object] = {}
         self.torque_speed: TorqueSpeedLimit | None = None
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
+
+    def _load_kernels(self, nconmax: int | None, njmax: int | None) -> None:
+        """Compile every kernel module that stepping, forward and kinematics use, in parallel, before the first step
+        (a dry run on scratch data of one world records them; see sim/kernels.py)."""
+        with wp.ScopedDevice(self.wp_device):
+            scratch = mjw.make_data(self.mj_model, nworld=1, nconmax=nconmax, njmax=njmax)
+            entry_points = [lambda: mjw.step(self.model, scratch), lambda: mjw.forward(self.model, scratch),
+                            lambda: mjw.kinematics(self.model, scratch)]
+            load_kernels(self.wp_device, entry_points)
 
     # ------------------------------------------------------------------ views
     def _bind_views(self) -> None:

@@ -14,6 +14,8 @@ from __future__ import annotations
 import copy
 import math
 import os
+import subprocess
+import sys
 import weakref
 from pathlib import Path
 
@@ -28,6 +30,55 @@ _GRID_RGBA = np.array([0.55, 0.6, 0.65, 1.0], dtype=np.float32)
 _GRID_SPACING = 0.5  # m
 
 AUTO = "auto"  # track_body default: the floating base's body when there is one, a fixed view otherwise
+
+# A throwaway process opens a context with the backend this process would use: a backend that cannot start may
+# abort the process that tries (MuJoCo's GLFW does on a second try without a display), so this one never tries
+# an unproven backend, and remembers the verdict.
+_PROBE = """
+import mujoco
+model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=".1"/></worldbody></mujoco>')
+renderer = mujoco.Renderer(model, height=8, width=8)
+renderer.render()
+renderer.close()
+"""
+_gl_verdict: dict[str, str | None] = {}  # "error": None once the backend works, the message when it does not
+
+
+def _gl_error_message(reason: str) -> str:
+    backend = os.environ.get("MUJOCO_GL", "")
+    named = f"MUJOCO_GL={backend!r}" if backend else "MUJOCO_GL unset (GLFW, which needs a display)"
+    return (
+        f"MuJoCo's offscreen renderer cannot start with {named}: {reason}. Video recording needs an OpenGL "
+        "backend: on CPU machines OSMesa (Debian/Ubuntu: apt-get install libosmesa6, then MUJOCO_GL=osmesa or "
+        "leave MUJOCO_GL unset: isaacgymenvs_mw picks OSMesa when it finds the library), on NVIDIA GPUs EGL "
+        "(MUJOCO_GL=egl, libEGL from the driver or apt-get install libegl1). MUJOCO_GL is read when mujoco is "
+        "first imported, so set it before the run starts."
+    )
+
+
+def gl_backend_error() -> str | None:
+    """Why MuJoCo's offscreen renderer cannot start here (None if it can). Probed once per process."""
+    if "error" not in _gl_verdict:
+        try:
+            proc = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120,
+                                  env=os.environ.copy())
+            ok, detail = proc.returncode == 0, (proc.stderr.strip().splitlines() or [f"exit status {proc.returncode}"])
+            reason = None if ok else detail[-1][-300:]
+        except (OSError, subprocess.TimeoutExpired) as err:
+            reason = f"the test process failed ({err})"
+        _gl_verdict["error"] = None if reason is None else _gl_error_message(reason)
+    return _gl_verdict["error"]
+
+
+def _start_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
+    """A renderer, or the same clear RuntimeError on every attempt where no GL backend works."""
+    error = gl_backend_error()
+    if error is None:
+        try:
+            return mujoco.Renderer(model, height=height, width=width)
+        except Exception as err:  # noqa: BLE001  (the probe passed, this process did not: remember it)
+            _gl_verdict["error"] = error = _gl_error_message(f"{type(err).__name__}: {err}")
+    raise RuntimeError(error)
 
 
 class VideoRecorder:
@@ -85,15 +136,7 @@ class VideoRecorder:
 
         self.track_body_id = self._tracked_body(track_body)
         self.camera = self._make_camera()
-        try:
-            self.renderer = mujoco.Renderer(self.model, height=self.height, width=self.width)
-        except Exception as err:
-            raise RuntimeError(
-                f"MuJoCo's offscreen renderer could not start (MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r}): "
-                f"{err}. Headless machines need an OpenGL backend: on NVIDIA GPUs MUJOCO_GL=egl (libEGL), on CPUs "
-                "MUJOCO_GL=osmesa with OSMesa installed (Debian/Ubuntu: apt-get install libosmesa6). "
-                "Set MUJOCO_GL before the first import of mujoco."
-            ) from err
+        self.renderer = _start_renderer(self.model, self.height, self.width)
         # Release the GL context at the latest when the interpreter exits (MuJoCo's own __del__ fails then).
         self._release = weakref.finalize(self, self.renderer.close)
         self._writer = None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import tempfile
 from pathlib import Path
 from typing import Sequence
 
@@ -88,12 +90,115 @@ def whole_number(value, key: str, minimum: int) -> int:
     return number
 
 
+def real_number(value, key: str, low: float | None = None, high: float | None = None, low_open: bool = False) -> float:
+    """``value`` as a float in [low, high] (``low_open``: above low); text, booleans, NaN fail naming ``key``."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and low is not None:
+        ok = value > low if low_open else value >= low
+    if ok and high is not None:
+        ok = value <= high
+    if not ok:
+        bounds = [f"{'>' if low_open else '>='} {low}" if low is not None else "", f"<= {high}" if high else ""]
+        wanted = " and ".join(b for b in bounds if b) or "finite"
+        raise ValueError(f"{key}={value!r} is invalid: give a number {wanted}")
+    return float(value)
+
+
+def boolean(value, key: str) -> bool:
+    """``value`` if it is True or False; anything else (1, 'yes', '') fails naming ``key``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{key}={value!r} is invalid: give True or False")
+    return value
+
+
+# Run-level keys of cfg/config.yaml and what each takes; num_envs and max_iterations may also be '' (YAML default).
+_RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "multi_gpu", "capture_video", "verbose")
+_RUN_WHOLE_NUMBERS = {"num_envs": 1, "max_iterations": 0, "seed": -1, "graphics_device_id": -1,
+                      "capture_video_freq": 1, "capture_video_len": 1}
+_RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device")
+_RUN_NONEMPTY = ("runs_dir", "sim_device", "rl_device")
+
+
 def check_run_config(cfg: DictConfig) -> None:
-    """Fail on run-level keys that are out of range, before anything is allocated."""
-    for key, minimum in (("num_envs", 1), ("max_iterations", 0)):
+    """Fail on run-level keys that are out of range or of the wrong kind, before anything is allocated."""
+    for key, minimum in _RUN_WHOLE_NUMBERS.items():
         value = cfg.get(key, "")
-        if value not in ("", None):
+        if not (value in ("", None) and key in ("num_envs", "max_iterations")):
             whole_number(value, key, minimum)
+    for key in _RUN_BOOLEANS:
+        if key in cfg:
+            boolean(cfg[key], key)
+    for key in _RUN_TEXT:
+        value = cfg.get(key, "")
+        if not isinstance(value, str) or (key in _RUN_NONEMPTY and not value.strip()):
+            wanted = "a non-empty string" if key in _RUN_NONEMPTY else "a string"
+            raise ValueError(f"{key}={value!r} is invalid: give {wanted}")
+
+
+def check_runs_dir(runs_dir: str) -> None:
+    """Fail naming ``runs_dir`` if a training run could not write there; leaves nothing behind.
+
+    Folders that do not exist yet are created for the check and removed again, and a file is written and deleted:
+    permissions alone do not tell (root passes every access check, yet cannot create folders in /proc).
+    """
+    path = Path(runs_dir).expanduser().absolute()
+    created = []
+    try:
+        missing = [p for p in (path, *path.parents) if not p.exists()]
+        for folder in reversed(missing):
+            folder.mkdir()
+            created.append(folder)
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as err:
+        raise ValueError(f"runs_dir={runs_dir!r} cannot be written to ({err.strerror or err}): give a folder "
+                         "you can create and write in") from err
+    finally:
+        for folder in reversed(created):
+            folder.rmdir()
+
+
+# Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.
+_TRAIN_CHECKS = {
+    ("runner", "num_steps_per_env"): lambda v, k: whole_number(v, k, 1),
+    ("runner", "max_iterations"): lambda v, k: whole_number(v, k, 0),
+    ("runner", "save_interval"): lambda v, k: whole_number(v, k, 1),
+    ("runner", "init_at_random_ep_len"): boolean,
+    ("algorithm", "learning_rate"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "desired_kl"): lambda v, k: v is None or real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "num_learning_epochs"): lambda v, k: whole_number(v, k, 1),
+    ("algorithm", "num_mini_batches"): lambda v, k: whole_number(v, k, 1),
+    ("algorithm", "clip_param"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "gamma"): lambda v, k: real_number(v, k, 0.0, 1.0),
+    ("algorithm", "lam"): lambda v, k: real_number(v, k, 0.0, 1.0),
+    ("algorithm", "value_loss_coef"): lambda v, k: real_number(v, k, 0.0),
+    ("algorithm", "entropy_coef"): lambda v, k: real_number(v, k),
+    ("algorithm", "max_grad_norm"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "use_clipped_value_loss"): boolean,
+    ("actor", "obs_normalization"): boolean,
+    ("critic", "obs_normalization"): boolean,
+}
+_SCHEDULES = ("adaptive", "fixed")
+
+
+def check_train_config(train_cfg: dict) -> None:
+    """Fail on train YAML values of the wrong kind or range, naming ``train.<section>.<key>``, before rsl_rl runs."""
+    for (section, key), check in _TRAIN_CHECKS.items():
+        if key in (train_cfg.get(section) or {}):
+            check(train_cfg[section][key], f"train.{section}.{key}")
+    schedule = (train_cfg.get("algorithm") or {}).get("schedule", "adaptive")
+    if schedule not in _SCHEDULES:
+        raise ValueError(f"train.algorithm.schedule={schedule!r} is invalid: choose one of {list(_SCHEDULES)}")
+    for section in ("actor", "critic"):
+        dims = (train_cfg.get(section) or {}).get("hidden_dims", [])
+        if not isinstance(dims, list) or not dims:
+            raise ValueError(f"train.{section}.hidden_dims={dims!r} is invalid: give a list of layer sizes, "
+                             "e.g. [64, 64]")
+        for dim in dims:
+            whole_number(dim, f"train.{section}.hidden_dims", 1)
+    init_std = ((train_cfg.get("actor") or {}).get("distribution_cfg") or {}).get("init_std")
+    if init_std is not None:
+        real_number(init_std, "train.actor.distribution_cfg.init_std", 0.0, low_open=True)
 
 
 def to_dict(cfg: DictConfig) -> dict:

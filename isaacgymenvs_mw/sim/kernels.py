@@ -1,0 +1,150 @@
+"""Warp start-up: quiet initialisation, and every kernel module a simulator needs compiled in parallel up front.
+
+MuJoCo Warp builds its kernels for the model at hand while ``step`` runs, and Warp compiles each module the first
+time one of its kernels launches: one module after another, dozens of them. ``load_kernels`` instead runs the
+simulator's entry points once with launches recorded rather than executed, then compiles and loads the recorded
+modules on a pool of threads (what ``wp.force_load(max_workers=...)`` does), printing one progress line with an
+estimate of the time left and one line when done. Warp's own line per module is shown only with ``verbose``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from typing import Callable, Sequence
+
+import warp as wp
+
+_PREFIX = "[isaacgymenvs_mw]"
+_CUDA_DRIVER_WARNING = b"Could not find or load the NVIDIA CUDA driver"
+_PROGRESS_EVERY_S = 5.0  # a progress line at most this often while modules compile
+
+_state = {"verbose": False}
+_loaded: set[tuple[object, object, object]] = set()  # (module, device, block_dim) loaded in this process
+
+
+def set_verbose(verbose: bool) -> None:
+    """``verbose=True`` shows Warp's start-up banner and its line per loaded module; False only warnings."""
+    _state["verbose"] = bool(verbose)
+    wp.config.log_level = wp.LOG_INFO if verbose else wp.LOG_WARNING
+
+
+set_verbose(False)
+
+
+def init_warp(device: str) -> None:
+    """``wp.init()``; on a CPU-only run, without Warp's "could not load the NVIDIA CUDA driver" warning.
+
+    Warp's native library prints that warning to the C-level stderr while it looks for CUDA, on every machine
+    without a GPU driver. When the simulator runs on the CPU nothing is lost by not finding one, so the line is
+    dropped; anything else written meanwhile is passed on unchanged. Runs asking for a GPU keep it.
+    """
+    if wp._src.context.runtime is not None or str(device).startswith("cuda") or _state["verbose"]:
+        wp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            kept = [line for line in captured.read().splitlines(keepends=True) if _CUDA_DRIVER_WARNING not in line]
+    if kept:
+        sys.stderr.buffer.write(b"".join(kept))
+        sys.stderr.flush()
+
+
+def _record_launches(entry_points: Sequence[Callable[[], None]]) -> list[tuple[object, int | None]]:
+    """Run ``entry_points`` with every kernel launch recorded instead of executed: (module, block_dim) pairs.
+
+    MuJoCo Warp's step is capturable in a CUDA graph, so its Python side does not depend on device values; the
+    only loops over device values are ``capture_while``/``capture_if``, whose bodies are run once here (both
+    branches of an ``if``) so that their kernels are recorded too. Copies and fills still run, which is why the
+    entry points work on scratch data.
+    """
+    found: dict[tuple[object, int | None], None] = {}
+
+    def record(kernel, dim=None, *args, block_dim: int | None = None, **kwargs) -> None:
+        if math.prod([dim] if isinstance(dim, int) else (dim or [0])) == 0:
+            return  # Warp skips an empty launch without loading its module
+        module = getattr(kernel, "module", None)
+        if module is not None and not getattr(kernel, "is_generic", False):
+            found[(module, block_dim)] = None
+
+    def run_while(condition, while_body, stream=None, **kwargs) -> None:
+        if callable(while_body):
+            while_body(**kwargs)
+
+    def run_if(condition, on_true=None, on_false=None, stream=None, **kwargs) -> None:
+        for branch in (on_true, on_false):
+            if callable(branch):
+                branch(**kwargs)
+
+    names = ("launch", "launch_tiled", "capture_while", "capture_if")
+    saved = {name: getattr(wp, name) for name in names}
+    wp.launch, wp.launch_tiled, wp.capture_while, wp.capture_if = record, record, run_while, run_if
+    try:
+        for fn in entry_points:
+            fn()
+    finally:
+        for name, fn in saved.items():
+            setattr(wp, name, fn)
+    return list(found)
+
+
+def _cache_entries() -> set[str]:
+    cache = wp.config.kernel_cache_dir
+    try:
+        return set(os.listdir(cache)) if cache else set()
+    except OSError:
+        return set()
+
+
+def load_kernels(device: wp.context.Device, entry_points: Sequence[Callable[[], None]],
+                 max_workers: int | None = None) -> int:
+    """Compile/load every module the entry points launch, on ``max_workers`` threads (default: all cores).
+
+    Returns how many modules were loaded now (0 when all were already loaded in this process). Anything the
+    recording misses is still compiled on first use, as Warp always does, so this can only save time.
+    """
+    try:
+        recorded = _record_launches(entry_points)
+    except Exception as err:  # noqa: BLE001  (a dry run that fails only loses the head start)
+        if _state["verbose"]:
+            print(f"{_PREFIX} Warp kernels load on first use ({type(err).__name__}: {err})", flush=True)
+        return 0
+    pending = [(m, bd) for m, bd in recorded if (m, str(device), bd) not in _loaded]
+    if not pending:
+        return 0
+    workers = max(1, int(max_workers or os.cpu_count() or 1))
+    before = _cache_entries()
+    start = last_print = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(wp.force_load, device=device, modules=[m], block_dim=bd, max_workers=0)
+                   for m, bd in pending]
+        for done, future in enumerate(as_completed(futures), start=1):
+            future.result()
+            now = time.perf_counter()
+            if done < len(futures) and now - last_print >= _PROGRESS_EVERY_S:
+                left = (now - start) / done * (len(futures) - done)
+                print(f"{_PREFIX} Warp kernels on {device}: {done}/{len(futures)} modules ready after "
+                      f"{now - start:.0f} s, about {left:.0f} s left", flush=True)
+                last_print = now
+    _loaded.update((m, str(device), bd) for m, bd in pending)
+    compiled = len(_cache_entries() - before)
+    took = time.perf_counter() - start
+    cache = wp.config.kernel_cache_dir
+    if compiled:
+        detail = f"{compiled} compiled on {workers} threads, {len(pending) - compiled} from the cache {cache}"
+    else:
+        detail = f"all from the cache {cache}"
+    print(f"{_PREFIX} Warp kernels on {device}: {len(pending)} modules ready in {took:.1f} s ({detail})", flush=True)
+    return len(pending)

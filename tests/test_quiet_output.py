@@ -1,0 +1,63 @@
+"""What a run prints: one line for Warp's kernels (Warp's own lines only with verbose=True), no CUDA-driver warning on
+CPU runs, no rsl_rl network printout, a plain word while no episode has ended; and kernels ready before the first
+step, so that stepping compiles or loads nothing more."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+
+from conftest import CPU_ARGS, REPO_ROOT
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+
+
+def train(tmp_path, *extra: str) -> str:
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=1",
+           "train.runner.num_steps_per_env=2", *CPU_ARGS, f"runs_dir={tmp_path / 'runs'}", *extra]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env=ENV)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    return out
+
+
+def test_default_output_is_compact(tmp_path):
+    out = train(tmp_path)
+    kernel_lines = [ln for ln in out.splitlines() if ln.startswith("[isaacgymenvs_mw] Warp kernels on cpu:")]
+    assert len(kernel_lines) >= 1 and re.search(r"\d+ modules ready in [\d.]+ s", kernel_lines[-1]), out
+    assert " load on device " not in out and "Warp 1." not in out  # Warp's per-module lines and banner
+    assert "Could not find or load the NVIDIA CUDA driver" not in out
+    assert "MLP(" not in out and "Resolved observation sets" not in out
+    # 2 steps per iteration: no Cartpole episode can have ended, and the line says how far the longest got
+    (it_line,) = [ln for ln in out.splitlines() if ln.startswith("[it ")]
+    assert "no episode ended yet (longest 2/" in it_line and "ep_rew" not in it_line, it_line
+
+
+def test_verbose_shows_warp_and_rsl_rl_detail(tmp_path):
+    out = train(tmp_path, "verbose=True")
+    assert " load on device 'cpu'" in out and "MLP(" in out
+
+
+STEP_AFTER_BUILD = """
+import isaacgymenvs_mw, warp
+task = isaacgymenvs_mw.make("Go1", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True)
+warp.config.log_level = warp.LOG_INFO  # from here on Warp reports every module it loads
+print("BUILT", flush=True)
+task.reset()
+for _ in range(3):
+    task.step(task.zero_actions())
+task.sim.forward()
+print("STEPPED", flush=True)
+"""
+
+
+def test_kernels_are_ready_before_the_first_step(tmp_path):
+    proc = subprocess.run([sys.executable, "-c", STEP_AFTER_BUILD], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300, env={**ENV, "PYTHONPATH": str(REPO_ROOT)})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    before, after = proc.stdout.split("BUILT", 1)
+    assert "STEPPED" in after
+    assert re.search(r"Warp kernels on cpu: \d+ modules ready", before)
+    assert " load on device " not in after, after  # reset, steps and forward found every module loaded

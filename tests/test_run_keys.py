@@ -1,0 +1,113 @@
+"""Run-level and train keys are checked before anything is built, with messages naming key, value and what is valid;
+and a run stopped by Ctrl-C or SIGTERM keeps its checkpoint and summary and exits with the signal's status."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from conftest import CPU_ARGS, REPO_ROOT
+from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.utils.config import check_runs_dir, compose_config
+
+
+@pytest.fixture
+def no_simulator(monkeypatch):
+    """Fail the test if a Simulator (kernels, device memory) is built."""
+    from isaacgymenvs_mw.sim import simulator
+
+    def forbidden(self, *args, **kwargs):
+        raise AssertionError("Simulator was constructed before the bad key was reported")
+
+    monkeypatch.setattr(simulator.Simulator, "__init__", forbidden)
+
+
+@pytest.mark.parametrize("override,named,valid", [
+    ("seed=abc", "seed='abc'", "whole number >= -1"),
+    ("seed=1.5", "seed=1.5", "whole number >= -1"),
+    ("headless=yes", "headless='yes'", "True or False"),
+    ("test=1", "test=1", "True or False"),
+    ("capture_video=maybe", "capture_video='maybe'", "True or False"),
+    ("torch_deterministic=0", "torch_deterministic=0", "True or False"),
+    ("verbose=2", "verbose=2", "True or False"),
+    ("deterministic=on", "deterministic='on'", "True or False"),
+    ("capture_video_freq=0", "capture_video_freq=0", "whole number >= 1"),
+    ("capture_video_len=abc", "capture_video_len='abc'", "whole number >= 1"),
+    ("graphics_device_id=x", "graphics_device_id='x'", "whole number >= -1"),
+    ("runs_dir=''", "runs_dir=''", "non-empty string"),
+    ("train.algorithm.learning_rate=abc", "train.algorithm.learning_rate='abc'", "number > 0"),
+    ("train.algorithm.learning_rate=-1e-3", "train.algorithm.learning_rate=-0.001", "number > 0"),
+    ("train.algorithm.gamma=1.5", "train.algorithm.gamma=1.5", "number >= 0.0 and <= 1.0"),
+    ("train.algorithm.num_mini_batches=0", "train.algorithm.num_mini_batches=0", "whole number >= 1"),
+    ("train.algorithm.schedule=sometimes", "train.algorithm.schedule='sometimes'", "['adaptive', 'fixed']"),
+    ("train.algorithm.use_clipped_value_loss=sure", "train.algorithm.use_clipped_value_loss='sure'",
+     "True or False"),
+    ("train.runner.num_steps_per_env=0", "train.runner.num_steps_per_env=0", "whole number >= 1"),
+    ("train.runner.init_at_random_ep_len=1", "train.runner.init_at_random_ep_len=1", "True or False"),
+    ("train.actor.hidden_dims=[32,0]", "train.actor.hidden_dims=0", "whole number >= 1"),
+    ("train.actor.distribution_cfg.init_std=0", "train.actor.distribution_cfg.init_std=0", "number > 0"),
+])
+def test_bad_key_is_named_with_what_is_valid_before_anything_is_built(tmp_path, no_simulator, override, named,
+                                                                      valid):
+    runs = tmp_path / "runs"
+    with pytest.raises(ValueError) as err:
+        run(compose_config(["task=Cartpole", "num_envs=2", *CPU_ARGS, f"runs_dir={runs}", override]))
+    msg = str(err.value)
+    assert named in msg and valid in msg, msg
+    assert not runs.exists()
+
+
+@pytest.mark.parametrize("runs_dir", ["/proc/nope", "/proc/nope/deeper"])
+def test_runs_dir_that_cannot_be_created_is_named(no_simulator, runs_dir):
+    with pytest.raises(ValueError) as err:
+        run(compose_config(["task=Cartpole", "num_envs=2", *CPU_ARGS, f"runs_dir={runs_dir}"]))
+    msg = str(err.value)
+    assert f"runs_dir='{runs_dir}'" in msg and "cannot be written" in msg and "create and write" in msg
+
+
+def test_runs_dir_under_a_file_is_named_and_a_good_one_is_left_untouched(tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    with pytest.raises(ValueError, match="runs_dir="):
+        check_runs_dir(str(blocker / "runs"))
+    # a folder that can be made passes, and the check leaves nothing behind: the run makes it when it writes
+    check_runs_dir(str(tmp_path / "new" / "deeper" / "runs"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signum):
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=100000",
+           "train.runner.save_interval=100000", *CPU_ARGS, f"runs_dir={runs}"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("[it "):
+                proc.send_signal(signum)
+                break
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    lines.append(out)
+    text = "".join(lines)
+    assert proc.returncode == 128 + signum, text[-3000:]  # 143 for SIGTERM, 130 for SIGINT
+    assert "Fatal Python error" not in text
+
+    (run_dir,) = (runs / "Cartpole").iterdir()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["signal"] == signal.Signals(signum).name
+    last = summary["final_iteration"]
+    assert last >= 1 and len(summary["history"]) == last
+    checkpoints = sorted(p.name for p in run_dir.glob("model_*.pt"))
+    assert checkpoints == [f"model_{last}_interrupted.pt"]  # what it learned, and no 'finished' checkpoint
+    assert f"stopped by {signal.Signals(signum).name}" in text
