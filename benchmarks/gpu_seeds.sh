@@ -14,14 +14,21 @@ for args in "$@"; do
    echo "rc=$?" >> "$out/train$i.log") &
 done
 wait
+# The evaluations run side by side too; their results are printed in run order.
 i=0
 for args in "$@"; do
   i=$((i + 1))
   ckpt=$(ls -t "$out"/runs$i/*/*/model_*.pt 2>/dev/null | head -1)
-  if [ -z "$ckpt" ]; then echo "run $i ($args): no checkpoint"; tail -3 "$out/train$i.log"; continue; fi
+  if [ -z "$ckpt" ]; then echo "no checkpoint" > "$out/eval$i.txt"; tail -3 "$out/train$i.log" >> "$out/eval$i.txt"; continue; fi
   cp "$(dirname "$ckpt")/summary.json" "$out/summary$i.json"
   # shellcheck disable=SC2086
-  res=$(timeout 150 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 $args \
-        2>&1 | grep "\[eval\] {")
-  echo "run $i ($args): $(grep -o 'done in [0-9.]*s' "$out/train$i.log") ${res:7:400}" | tee -a "$out/evals.txt"
+  (timeout 200 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 $args \
+     2>&1 | grep "\[eval\] {" > "$out/eval$i.txt") &
+done
+wait
+i=0
+for args in "$@"; do
+  i=$((i + 1))
+  echo "run $i ($args): $(grep -o 'done in [0-9.]*s' "$out/train$i.log") $(cut -c8-400 "$out/eval$i.txt")" \
+    | tee -a "$out/evals.txt"
 done
