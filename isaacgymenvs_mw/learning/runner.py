@@ -175,6 +175,8 @@ class Runner(OnPolicyRunner):
                   f"reset ({self.nonfinite_resets} so far)", flush=True)
         if stats["episodes"]:
             episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
+            if "Episode/terrain_level" in stats:
+                episodes += f" | terrain_level {stats['Episode/terrain_level']:5.2f}"
         else:  # a host read, but only on iterations where no episode ended
             longest = int(env.episode_length_buf.max())
             episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
