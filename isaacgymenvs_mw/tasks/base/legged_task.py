@@ -339,19 +339,19 @@ class LeggedTask(VecTask):
             self.sim.dof_vel * s["dofVel"],
             self.actions,
         ]
-        scan = []
+        policy_scan, critic_scan = [], []  # both stay empty without terrain: the flat tasks' tensors as before
         if self.terrain is not None:
             self.measured_heights[:] = self.scan_heights()
             below = self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights
-            scan = [below.clamp(-1.0, 1.0) * s["heightMeasurements"]]
-        obs = torch.cat(terms + (scan if self.terrain is not None and self.measure_heights else []), dim=-1)
+            scan = below.clamp(-1.0, 1.0) * s["heightMeasurements"]
+            (policy_scan if self.measure_heights else critic_scan).append(scan)
+        obs = torch.cat(terms + policy_scan, dim=-1)
         if self.num_states:
             feet_contact = (self.contact_force_norm[:, self._feet_idx] > 1.0).float()
             n = self.num_envs
             self.states_buf[:] = torch.cat([obs, self._ground_friction.expand(n, 1),
                                             (self._base_mass - self._nominal_base_mass).expand(n, 1),
-                                            self.sim.root_pos[:, 2:3], feet_contact]
-                                           + (scan if not self.measure_heights else []), dim=-1)
+                                            self.sim.root_pos[:, 2:3], feet_contact] + critic_scan, dim=-1)
         self.obs_buf[:] = obs  # the randomisation layer adds the observation noise
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
