@@ -34,7 +34,9 @@ OVERRIDES = [
     "task.task.randomize=False",  # the deployed observation is noiseless (and the model nominal)
     f"+task.env.history={{policy:{{length:3,terms:[{','.join(HISTORY)}]}}}}",
 ]
-GO1_YAML = OmegaConf.load(REPO_ROOT / "cfg" / "task" / "Go1.yaml")
+# cfg/task/Go1.yaml over the legged base its defaults list names, merged here by OmegaConf rather than Hydra.
+GO1_YAML = OmegaConf.merge(OmegaConf.load(REPO_ROOT / "cfg" / "legged" / "base.yaml"),
+                           OmegaConf.load(REPO_ROOT / "cfg" / "task" / "Go1.yaml"))
 
 
 def default_angle(joint: str) -> float:

@@ -345,7 +345,7 @@ def test_random_resets_start_inside_the_joint_limits(quiet_task, robot, urdf):
     """
     task = quiet_task
     task.reset_dof_pos_scale = tuple(yaml_cfg(robot).env.resetDofPosScale)
-    assert task.reset_dof_pos_scale == (0.5, 1.5)  # cfg/task/{Anymal,Go1}.yaml
+    assert task.reset_dof_pos_scale == (0.5, 1.5)  # cfg/legged/base.yaml
     lower = np.array([urdf["joints"][j][0] for j in task.sim.dof_names])
     upper = np.array([urdf["joints"][j][1] for j in task.sim.dof_names])
     outside = set()
@@ -450,7 +450,7 @@ def test_friction_and_mass_are_randomised_per_env_within_yaml_ranges(default_tas
     assert geom_friction.shape == (N, model.ngeom, 3)
     friction = geom_friction[:, ground, 0]
     lo, hi = rand.rigid_shape_properties.friction.range  # x the plane's friction, 1.0
-    assert (lo, hi) == (0.5, 1.25)  # cfg/task/{Anymal,Go1}.yaml
+    assert (lo, hi) == (0.5, 1.25)  # cfg/legged/base.yaml
     assert np.all((friction >= lo) & (friction <= hi)), friction
     assert len(np.unique(friction)) > 1, friction
     # only the ground's sliding friction is per env; everything else keeps the compiled value
@@ -504,7 +504,7 @@ def test_unknown_joint_name_fails_with_the_list_of_joints(robot, urdf, override,
 # ----------------------------------------------------------------------------------- 8. reward formulas
 def test_reward_terms_match_independent_formulas(quiet_task, robot):
     task = quiet_task
-    sigma = 0.25  # cfg/task/{Anymal,Go1}.yaml rewards.trackingSigma
+    sigma = 0.25  # cfg/legged/base.yaml rewards.trackingSigma
     rot = write_known_root_state(task, robot)
     v_body = np.einsum("nji,nj->ni", rot, V_WORLD)  # R^T v
     g_body = np.einsum("nji,j->ni", rot, np.array([0.0, 0.0, -1.0]))

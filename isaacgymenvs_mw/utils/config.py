@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf.errors import MissingMandatoryValue
 
 CFG_DIR = Path(__file__).resolve().parents[2] / "cfg"
 
@@ -202,4 +203,9 @@ def check_train_config(train_cfg: dict) -> None:
 
 
 def to_dict(cfg: DictConfig) -> dict:
-    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    """``cfg`` resolved into plain dicts and lists; a ``???`` (mandatory) value left unset fails naming its key."""
+    try:
+        return OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)  # type: ignore[return-value]
+    except MissingMandatoryValue as err:
+        raise ValueError(f"{err.full_key} has no value (??? in the YAML it comes from, e.g. cfg/legged/base.yaml "
+                         "for the legged robots): set it in the task YAML or on the command line") from None
