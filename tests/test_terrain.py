@@ -284,3 +284,15 @@ def test_flat_tasks_have_no_terrain():
     flat = isaacgymenvs_mw.make("Anymal", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True, seed=0)
     assert flat.terrain is None
     assert int(flat.sim.mj_model.geom_type[flat.ground_geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
+
+
+def test_video_frames_the_robot_on_the_terrain(task, tmp_path):
+    from isaacgymenvs_mw.sim.video import VideoRecorder
+    from test_video import robot_pixels
+
+    task.reset()
+    rec = VideoRecorder(task.sim, tmp_path, fps=50, width=160, height=120)
+    n, centre = robot_pixels(rec, task.ground_geom)
+    # The camera frames the robot (a few percent of the picture near its middle), not the whole terrain.
+    assert n > 200, n
+    assert np.all(np.abs(centre - np.array([80, 60])) < 30), centre
