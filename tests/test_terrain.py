@@ -296,3 +296,19 @@ def test_video_frames_the_robot_on_the_terrain(task, tmp_path):
     # The camera frames the robot (a few percent of the picture near its middle), not the whole terrain.
     assert n > 200, n
     assert np.all(np.abs(centre - np.array([80, 60])) < 30), centre
+
+
+def test_evaluation_reports_each_terrain_level():
+    from isaacgymenvs_mw.learning.runner import evaluate
+
+    t = make(overrides=[T + "curriculum=False", "task.env.episodeLength_s=0.5"])
+    levels = t.terrain_levels.clone()
+    out = evaluate(t, lambda obs: torch.zeros(NUM_ENVS, 12), "cpu")
+    per = out["per_terrain_level"]
+    assert sorted(per) == sorted(str(v) for v in set(levels.tolist()))
+    assert sum(row["episodes"] for row in per.values()) == NUM_ENVS
+    for level, row in per.items():
+        assert row["episodes"] == int((levels == int(level)).sum())
+        assert 0.0 <= row["survival"] <= 1.0 and row["lin_vel_tracking_error"] >= 0.0
+    # Standing still for half a second on its platform, nobody falls: every episode ends on the time limit.
+    assert all(row["survival"] == 1.0 for row in per.values())
