@@ -312,3 +312,22 @@ def test_evaluation_reports_each_terrain_level():
         assert 0.0 <= row["survival"] <= 1.0 and row["lin_vel_tracking_error"] >= 0.0
     # Standing still for half a second on its platform, nobody falls: every episode ends on the time limit.
     assert all(row["survival"] == 1.0 for row in per.values())
+
+
+def test_training_logs_the_terrain_level(tmp_path, capsys):
+    import json
+
+    from isaacgymenvs_mw.learning.launch import run
+    from isaacgymenvs_mw.utils.config import compose_config
+
+    # Short episodes (0.4 s) so that episodes end, and the curriculum moves envs, inside two short iterations.
+    cfg = compose_config(["task=AnymalTerrain", f"num_envs={NUM_ENVS}", "max_iterations=2", "sim_device=cpu",
+                          "rl_device=cpu", "headless=True", f"runs_dir={tmp_path / 'runs'}",
+                          "train.runner.num_steps_per_env=25", "task.env.episodeLength_s=0.4", *TINY])
+    summary = run(cfg)
+    levels = [h["Episode/terrain_level"] for h in summary["history"]]
+    assert len(levels) == 2 and all(0.0 <= v <= 1.0 for v in levels)  # 2 levels: 0 and 1
+    assert summary["terrain_level"] is not None and 0.0 <= summary["terrain_level"] <= 1.0
+    on_disk = json.loads((next((tmp_path / "runs" / "AnymalTerrain").iterdir()) / "summary.json").read_text())
+    assert on_disk["terrain_level"] == summary["terrain_level"]
+    assert "terrain_level" in capsys.readouterr().out  # the progress line
