@@ -68,7 +68,8 @@ def test_heights_follow_the_formulas_at_sampled_points():
     hs, border, n = 0.1, 10, 40  # samples: spacing, border, per cell
     for level in range(3):
         for col, kind in enumerate(TERRAIN_TYPES):
-            block = terrain.heights[border + level * n:border + (level + 1) * n, border + col * n:border + (col + 1) * n]
+            rows, cols = border + level * n, border + col * n
+            block = terrain.heights[rows:rows + n, cols:cols + n]
             d = level / 3
             for a, b in rng.integers(0, n, size=(40, 2)):
                 x, y, h = a * hs, b * hs, block[a, b]
@@ -331,3 +332,11 @@ def test_training_logs_the_terrain_level(tmp_path, capsys):
     on_disk = json.loads((next((tmp_path / "runs" / "AnymalTerrain").iterdir()) / "summary.json").read_text())
     assert on_disk["terrain_level"] == summary["terrain_level"]
     assert "terrain_level" in capsys.readouterr().out  # the progress line
+
+
+def test_terrain_type_plane_keeps_the_flat_ground():
+    t = make(overrides=[T + "type=plane", "task.env.numObservations=48", "task.env.numStates=55"])
+    assert t.terrain is None
+    assert int(t.sim.mj_model.geom_type[t.ground_geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
+    obs = t.reset()
+    assert obs["obs"].shape == (NUM_ENVS, 48) and obs["states"].shape == (NUM_ENVS, 55)

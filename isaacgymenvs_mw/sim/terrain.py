@@ -101,7 +101,8 @@ def parse_terrain_config(raw: Mapping | None) -> TerrainConfig:
     if cfg.type == "heightfield" and total > cfg.maxHeightfieldSamples:
         raise ValueError(
             f"env.terrain: the heightfield would have {total:,} samples ({cfg.numLevels * px + 2 * b} x "
-            f"{cfg.numTerrains * py + 2 * b}), more than env.terrain.maxHeightfieldSamples={cfg.maxHeightfieldSamples:,}"
+            f"{cfg.numTerrains * py + 2 * b}), more than "
+            f"env.terrain.maxHeightfieldSamples={cfg.maxHeightfieldSamples:,}"
             "; lower numLevels, numTerrains, mapLength, mapWidth or borderSize, or raise horizontalScale")
     return cfg
 

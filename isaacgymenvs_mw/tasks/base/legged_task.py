@@ -1,4 +1,5 @@
-"""Velocity-tracking locomotion on flat ground or generated rough terrain, shared by every legged robot (Anymal, Go1, ...).
+"""Velocity-tracking locomotion on flat ground or generated rough terrain, shared by every legged robot (Anymal,
+Go1, ...).
 
 The robot gets a command (forward and sideways velocity, yaw rate), sampled from YAML ranges and resampled on
 a timer, and must follow it. Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
