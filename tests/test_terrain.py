@@ -16,10 +16,13 @@ import torch
 
 import isaacgymenvs_mw
 from isaacgymenvs_mw.learning.vecenv import EpisodeStats
-from isaacgymenvs_mw.sim.terrain import TERRAIN_TYPES, generate_terrain, parse_terrain_config
+from isaacgymenvs_mw.sim.terrain import TERRAIN_TYPES, column_types, generate_terrain, parse_terrain_config
 
 T = "task.env.terrain."
-EQUAL_MIX = {t: 0.2 for t in TERRAIN_TYPES}  # with 5 columns: column j is TERRAIN_TYPES[j]
+EQUAL_MIX = {t: 1 / 6 for t in TERRAIN_TYPES}  # with 6 columns: column j is TERRAIN_TYPES[j]
+SIXTH = 0.1666666667
+WITH_STONES = [T + "numTerrains=6", T + "proportions={smooth_slope:%s,rough_slope:%s,stairs_up:%s,stairs_down:%s,"
+               "discrete_obstacles:%s,stepping_stones:%s}" % ((SIXTH,) * 6)]
 TINY = [T + "numLevels=2", T + "numTerrains=5", T + "mapLength=4.0", T + "mapWidth=4.0", T + "borderSize=1.0",
         T + "platformSize=2.0", T + "spawnJitter=0.3", T + "maxInitLevel=1",
         T + "proportions={smooth_slope:0.2,rough_slope:0.2,stairs_up:0.2,stairs_down:0.2,discrete_obstacles:0.2}"]
@@ -31,7 +34,7 @@ NUM_ENVS = 10  # two per column
 
 
 def tiny_config(**changes) -> dict:
-    raw = dict(type="heightfield", seed=3, numLevels=3, numTerrains=5, mapLength=4.0, mapWidth=4.0, borderSize=1.0,
+    raw = dict(type="heightfield", seed=3, numLevels=3, numTerrains=6, mapLength=4.0, mapWidth=4.0, borderSize=1.0,
                platformSize=2.0, proportions=EQUAL_MIX)
     raw.update(changes)
     return raw
@@ -77,6 +80,11 @@ def test_heights_follow_the_formulas_at_sampled_points():
                 if kind == "rough_slope":
                     noise = h - (-0.4 * d * min(2 - abs(x - 2), 2 - abs(y - 2), 1.0))
                     assert abs(noise) <= 0.05 + 1e-9 and abs(noise / 0.005 - round(noise / 0.005)) < 1e-6
+                elif kind == "stepping_stones":
+                    side = 1.575 + d * (0.075 - 1.575)  # legged_gym's 1.5 * (1.05 - d)
+                    pitch = side + 0.05 + d * 0.05
+                    stone = (x + 1e-9) % pitch < side and (y + 1e-9) % pitch < side
+                    assert h == (0.0 if stone or on_platform else -1.0), (level, x, y, h)
                 elif kind == "discrete_obstacles":
                     tall = 0.05 + 0.2 * d
                     allowed = [0.0] if on_platform else [0.0, -tall, -tall / 2, tall / 2, tall]
@@ -103,7 +111,11 @@ def test_default_mix_is_legged_gyms():
     types = generate_terrain(parse_terrain_config({"type": "heightfield", "numTerrains": 20, "numLevels": 1,
                                                    "borderSize": 0.0})).column_types
     counts = {t: types.count(t) for t in TERRAIN_TYPES}
-    assert counts == {"smooth_slope": 2, "rough_slope": 2, "stairs_up": 7, "stairs_down": 5, "discrete_obstacles": 4}
+    assert counts == {"smooth_slope": 2, "rough_slope": 2, "stairs_up": 7, "stairs_down": 5, "discrete_obstacles": 4,
+                      "stepping_stones": 0}
+    many = parse_terrain_config({"type": "heightfield", "numTerrains": 1000, "borderSize": 0.0, "numLevels": 1,
+                                 "maxHeightfieldSamples": 10 ** 8})
+    assert "stepping_stones" not in column_types(many)  # a zero share is never picked, even by rounding
     assert cfg.proportions["stairs_up"] == 0.35
 
 
@@ -192,11 +204,11 @@ def test_observation_and_state_sizes_follow_the_scan(task):
 # ------------------------------------------------------------------------------------------------------ spawning
 @pytest.mark.parametrize("robot", ["AnymalTerrain", "Go1Terrain"])
 def test_robots_spawn_on_their_cells_surface_on_every_type(robot):
-    task = make(robot, [T + "curriculum=False"])
+    task = make(robot, [T + "curriculum=False", *WITH_STONES])
     levels = torch.tensor([0, 1] * 5)
     task.terrain_levels[:] = levels
     task.env_origins[:] = task.terrain_origins[levels, task.terrain_types]
-    assert sorted(set(task.terrain_types.tolist())) == [0, 1, 2, 3, 4]  # every type
+    assert sorted(set(task.terrain_types.tolist())) == [0, 1, 2, 3, 4, 5]  # every type, stepping stones too
     task.reset()
     origins = task.terrain.origins[levels.numpy(), task.terrain_types.numpy()]
     start = task.sim.root_pos.clone().numpy()

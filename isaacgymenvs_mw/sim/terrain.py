@@ -14,6 +14,8 @@ with difficulty d = level / numLevels (legged_gym's rule):
   stairs_down        the same, negative
   discrete_obstacles numObstacles rectangles (sides U(obstacleSize)) raised or sunk by
                      one of {-1, -1/2, 1/2, 1} * obstacleHeight(d); the platform is cleared to 0
+  stepping_stones    square stones (side stoneSize(d)) at height 0 on a grid of pitch side + stoneGap(d), from the
+                     cell's corner, over a pit ``pitDepth`` deep; the platform is at 0. Off (proportion 0) by default
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from typing import Mapping
 
 import numpy as np
 
-TERRAIN_TYPES = ("smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete_obstacles")
+TERRAIN_TYPES = ("smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete_obstacles", "stepping_stones")
 GROUND_TYPES = ("plane", "heightfield")
 
 
@@ -49,6 +51,9 @@ class TerrainConfig:
     obstacleHeight: tuple = (0.05, 0.25)
     obstacleSize: tuple = (1.0, 2.0)  # m, rectangle side range
     numObstacles: int = 20
+    stoneSize: tuple = (1.575, 0.075)  # m, stone side at difficulty 0 and 1 (legged_gym: 1.5 * (1.05 - d))
+    stoneGap: tuple = (0.05, 0.1)    # m between stones at difficulty 0 and 1
+    pitDepth: float = 1.0            # m below 0 between the stones
     maxHeightfieldSamples: int = 4_000_000
 
     def sample_counts(self) -> tuple[int, int, int, int]:
@@ -60,7 +65,7 @@ class TerrainConfig:
 
 
 DEFAULT_PROPORTIONS = {"smooth_slope": 0.1, "rough_slope": 0.1, "stairs_up": 0.35, "stairs_down": 0.25,
-                       "discrete_obstacles": 0.2}  # legged_gym's rough-terrain mix
+                       "discrete_obstacles": 0.2, "stepping_stones": 0.0}  # legged_gym's rough-terrain mix
 
 
 def parse_terrain_config(raw: Mapping | None) -> TerrainConfig:
@@ -87,10 +92,12 @@ def parse_terrain_config(raw: Mapping | None) -> TerrainConfig:
     for key in ("numLevels", "numTerrains"):
         if int(getattr(cfg, key)) < 1:
             raise ValueError(f"env.terrain.{key}={getattr(cfg, key)} must be >= 1")
-    for key in ("stepHeight", "obstacleHeight", "obstacleSize"):
+    for key in ("stepHeight", "obstacleHeight", "obstacleSize", "stoneSize", "stoneGap"):
         value = getattr(cfg, key)
-        if len(value) != 2 or float(value[0]) > float(value[1]):
-            raise ValueError(f"env.terrain.{key}={list(value)} is invalid: give [low, high] with low <= high")
+        ordered = key not in ("stoneSize",)  # stones shrink with difficulty
+        if len(value) != 2 or (ordered and float(value[0]) > float(value[1])) or min(map(float, value)) < 0:
+            rule = "low <= high" if ordered else "both >= 0"
+            raise ValueError(f"env.terrain.{key}={list(value)} is invalid: give [at difficulty 0, at 1] ({rule})")
         setattr(cfg, key, (float(value[0]), float(value[1])))
     if cfg.platformSize > min(cfg.mapLength, cfg.mapWidth):
         raise ValueError(f"env.terrain.platformSize={cfg.platformSize} is larger than the cell "
@@ -124,11 +131,12 @@ def column_types(cfg: TerrainConfig) -> list[str]:
     """Type of each column: column j has choice = j / numTerrains + 0.001 and takes the first type whose
     cumulative proportion exceeds it (legged_gym's rule)."""
     cum = np.cumsum([cfg.proportions[t] for t in TERRAIN_TYPES])
+    last = max(k for k, t in enumerate(TERRAIN_TYPES) if cfg.proportions[t] > 0)  # rounding never picks a 0 share
     out = []
     for j in range(cfg.numTerrains):
         choice = j / cfg.numTerrains + 0.001
         k = int(np.searchsorted(cum, choice, side="right"))
-        out.append(TERRAIN_TYPES[min(k, len(TERRAIN_TYPES) - 1)])
+        out.append(TERRAIN_TYPES[min(k, last)])
     return out
 
 
@@ -165,8 +173,7 @@ def generate_terrain(cfg: TerrainConfig) -> Terrain:
     types = column_types(cfg)
     origins = np.zeros((cfg.numLevels, cfg.numTerrains, 3))
     lx, ly = np.meshgrid(np.arange(px) * hs, np.arange(py) * hs, indexing="ij")
-    centre = np.abs(lx - 0.5 * cfg.mapLength) <= 0.5 * cfg.platformSize
-    centre &= np.abs(ly - 0.5 * cfg.mapWidth) <= 0.5 * cfg.platformSize
+    centre = _on_platform(cfg, lx, ly)
     for i in range(cfg.numLevels):
         for j in range(cfg.numTerrains):
             cell = cell_heights(cfg, types[j], column_sign(cfg, j), difficulty(cfg, i), lx, ly, rng)
@@ -189,6 +196,11 @@ def cell_heights(cfg: TerrainConfig, kind: str, sign: float, d: float, x: np.nda
     if kind in ("stairs_up", "stairs_down"):
         step = cfg.stepHeight[0] + d * (cfg.stepHeight[1] - cfg.stepHeight[0])
         return sign * step * np.floor(e / cfg.stepWidth + 1e-9)
+    if kind == "stepping_stones":
+        side = cfg.stoneSize[0] + d * (cfg.stoneSize[1] - cfg.stoneSize[0])
+        pitch = side + cfg.stoneGap[0] + d * (cfg.stoneGap[1] - cfg.stoneGap[0])
+        on_stone = (np.mod(x + 1e-9, pitch) < side) & (np.mod(y + 1e-9, pitch) < side)
+        return np.where(on_stone | _on_platform(cfg, x, y), 0.0, -cfg.pitDepth)
     # discrete_obstacles
     height = cfg.obstacleHeight[0] + d * (cfg.obstacleHeight[1] - cfg.obstacleHeight[0])
     h = np.zeros_like(x)
@@ -196,10 +208,13 @@ def cell_heights(cfg: TerrainConfig, kind: str, sign: float, d: float, x: np.nda
         w, l = rng.uniform(*cfg.obstacleSize, size=2)
         x0, y0 = rng.uniform(0.0, cfg.mapLength - w), rng.uniform(0.0, cfg.mapWidth - l)
         h[(x >= x0) & (x < x0 + w) & (y >= y0) & (y < y0 + l)] = height * rng.choice([-1.0, -0.5, 0.5, 1.0])
-    platform = (np.abs(x - 0.5 * cfg.mapLength) <= 0.5 * cfg.platformSize) & \
-               (np.abs(y - 0.5 * cfg.mapWidth) <= 0.5 * cfg.platformSize)
-    h[platform] = 0.0
+    h[_on_platform(cfg, x, y)] = 0.0
     return h
+
+
+def _on_platform(cfg: TerrainConfig, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return (np.abs(x - 0.5 * cfg.mapLength) <= 0.5 * cfg.platformSize) & \
+           (np.abs(y - 0.5 * cfg.mapWidth) <= 0.5 * cfg.platformSize)
 
 
 def heightfield_grid(model, geom_name: str = "ground") -> dict:
