@@ -37,8 +37,10 @@ class EpisodeStats:
         episode as ``<group>/<name>``."""
         names = tuple(f"{group}/{k}" for k in episode_terms)
         values = torch.stack(tuple(episode_terms.values())).double()
-        acc = self._terms.get(names)
-        self._terms[names] = values if acc is None else acc + values
+        if names in self._terms:
+            self._terms[names] += values
+        else:
+            self._terms[names] = values  # a fresh tensor from torch.stack, owned here
 
     def pop(self) -> dict[str, float]:
         count, ret, length, timeouts, nonfinite = self.totals.tolist()
