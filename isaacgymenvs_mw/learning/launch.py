@@ -136,6 +136,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         "mean_episode_reward": means.get("mean_episode_reward"),
         "mean_episode_length": means.get("mean_episode_length"),
         "timeout_fraction": means.get("timeout_fraction"),
+        "terrain_level": means.get("Episode/terrain_level"),  # None without a terrain curriculum
         "nonfinite_resets": runner.nonfinite_resets,
         "device": device_description(task.sim_device),
         "versions": package_versions(),

@@ -175,6 +175,8 @@ class Runner(OnPolicyRunner):
                   f"reset ({self.nonfinite_resets} so far)", flush=True)
         if stats["episodes"]:
             episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
+            if "Episode/terrain_level" in stats:
+                episodes += f" | terrain_level {stats['Episode/terrain_level']:5.2f}"
         else:  # a host read, but only on iterations where no episode ended
             longest = int(env.episode_length_buf.max())
             episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
@@ -211,6 +213,8 @@ def evaluate(task, policy, device: str) -> dict:
     result_len = torch.zeros(n, device=env.device)
     result_timeout = torch.zeros(n, dtype=torch.bool, device=env.device)
     metric_sums: dict[str, torch.Tensor] = {}
+    # On terrain: each env's level during its first episode (levels change only at resets), for per-level results.
+    levels = task.terrain_levels.clone() if getattr(task, "terrain", None) is not None else None
     obs = env.get_observations()
     max_steps = int(env.max_episode_length) + 2
     with torch.inference_mode():
@@ -242,6 +246,14 @@ def evaluate(task, policy, device: str) -> dict:
     }
     for key, value in metric_sums.items():
         out[key] = float((value / length.clamp(min=1)).mean())
+    if levels is not None:
+        out["per_terrain_level"] = {}
+        for level in sorted(set(levels.tolist())):
+            sel = levels == level
+            row = {"episodes": int(sel.sum()), "survival": float(result_timeout[sel].float().mean()),
+                   "mean_episode_length": float(result_len[sel].mean())}
+            row.update({k: float((v / length.clamp(min=1))[sel].mean()) for k, v in metric_sums.items()})
+            out["per_terrain_level"][str(level)] = row
     return out
 
 

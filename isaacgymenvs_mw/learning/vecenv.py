@@ -17,8 +17,7 @@ class EpisodeStats:
         self.length = torch.zeros(num_envs, device=device)
         # [count, return sum, length sum, timeouts, worlds reset for NaN/inf state]
         self.totals = torch.zeros(5, device=device, dtype=torch.float64)
-        self._term_names: tuple[str, ...] = ()
-        self._term_acc: torch.Tensor | None = None
+        self._terms: dict[tuple[str, ...], torch.Tensor] = {}  # names -> accumulated sums
 
     def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor,
                nonfinite: torch.Tensor) -> None:
@@ -33,13 +32,15 @@ class EpisodeStats:
         self.ret *= keep
         self.length *= keep
 
-    def add_terms(self, episode_terms: dict[str, torch.Tensor]) -> None:
-        """Task-reported per-term sums over the episodes that ended this step (already summed over envs)."""
-        names = tuple(episode_terms)
+    def add_terms(self, episode_terms: dict[str, torch.Tensor], group: str = "Episode_Reward") -> None:
+        """Task-reported sums over the episodes that ended this step (already summed over envs); logged per
+        episode as ``<group>/<name>``."""
+        names = tuple(f"{group}/{k}" for k in episode_terms)
         values = torch.stack(tuple(episode_terms.values())).double()
-        if self._term_names != names:
-            self._term_names, self._term_acc = names, torch.zeros_like(values)
-        self._term_acc += values
+        if names in self._terms:
+            self._terms[names] += values
+        else:
+            self._terms[names] = values  # a fresh tensor from torch.stack, owned here
 
     def pop(self) -> dict[str, float]:
         count, ret, length, timeouts, nonfinite = self.totals.tolist()
@@ -50,11 +51,11 @@ class EpisodeStats:
                 mean_episode_length=length / count,
                 timeout_fraction=timeouts / count,
             )
-            if self._term_acc is not None:
-                for key, value in zip(self._term_names, self._term_acc.tolist()):
-                    out[f"Episode_Reward/{key}"] = value / count
+            for names, acc in self._terms.items():
+                for key, value in zip(names, acc.tolist()):
+                    out[key] = value / count
         self.totals.zero_()
-        self._term_names, self._term_acc = (), None  # made afresh inside the next rollout's inference mode
+        self._terms = {}  # made afresh inside the next rollout's inference mode
         return out
 
 
@@ -93,6 +94,8 @@ class RslRlVecEnv(VecEnv):
         self.stats.record(rew, reset, extras["time_outs"], extras["nonfinite_resets"])
         if "episode_terms" in extras:  # tasks that report them set them every step
             self.stats.add_terms(extras["episode_terms"])
+        if "episode_metrics" in extras:  # e.g. the terrain curriculum's level
+            self.stats.add_terms(extras["episode_metrics"], group="Episode")
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

@@ -43,6 +43,14 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
 from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
 from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
+from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
+    TERRAIN_TYPES,
+    Terrain,
+    TerrainConfig,
+    generate_terrain,
+    heightfield_grid,
+    parse_terrain_config,
+)
 
 __all__ = [
     "DRIVE_MODES",
@@ -62,4 +70,10 @@ __all__ = [
     "movable_joint_names",
     "set_verbose",
     "name_matches",
+    "TERRAIN_TYPES",
+    "Terrain",
+    "TerrainConfig",
+    "generate_terrain",
+    "heightfield_grid",
+    "parse_terrain_config",
 ]

@@ -20,6 +20,8 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
+from isaacgymenvs_mw.sim.terrain import Terrain
+
 DRIVE_MODES = ("none", "effort", "position")
 
 _INTEGRATORS = {
@@ -92,6 +94,8 @@ class ModelRequest:
     # True: the asset's contype/conaffinity/condim/friction stay as written and the ground collides with every
     # geom that collides with anything (MJCF); False: robot geoms touch only the ground (+ selfCollisions) (URDF).
     keep_asset_contacts: bool = False
+    # A generated height map (sim/terrain.py): the ground becomes a heightfield geom of it instead of a plane.
+    terrain: "Terrain | None" = None
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True) -> mujoco.MjSpec:
@@ -205,10 +209,11 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
 
     collide_bits = _set_collision_filter(spec, request.self_collisions, request.keep_asset_contacts)
     if request.ground is not None:
+        shape = _terrain_geom(spec, request.terrain) if request.terrain is not None else dict(
+            type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05])  # zero half-sizes: an infinite plane
         spec.worldbody.add_geom(
             name="ground",
-            type=mujoco.mjtGeom.mjGEOM_PLANE,
-            size=[0.0, 0.0, 0.05],  # zero half-sizes: an infinite plane
+            **shape,
             friction=[request.ground.friction, 0.005, 0.0001],
             contype=collide_bits[0],
             conaffinity=collide_bits[1],
@@ -256,6 +261,20 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
 
     _apply_options(spec, request.options)
     return spec.compile()
+
+
+def _terrain_geom(spec: mujoco.MjSpec, terrain: Terrain) -> dict:
+    """Add the height map as an hfield asset; returns the ground geom's shape arguments. MuJoCo stores heights
+    normalised to [0, 1] times the elevation range, above the geom's z; rows run along y, columns along x."""
+    h = terrain.heights
+    low, span = float(h.min()), float(np.ptp(h))
+    span = max(span, 1e-3)  # a flat map still needs a positive elevation range
+    nx, ny = h.shape
+    rx, ry = 0.5 * (nx - 1) * terrain.spacing, 0.5 * (ny - 1) * terrain.spacing
+    field = spec.add_hfield(name="terrain", nrow=ny, ncol=nx, size=[rx, ry, span, 1.0])  # 1 m thick base
+    field.userdata = ((h - low) / span).T.astype(np.float32).ravel().tolist()
+    return dict(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain",
+                pos=[terrain.x0 + rx, terrain.y0 + ry, low])
 
 
 def _check_joint(spec: mujoco.MjSpec, name: str, key: str) -> None:

@@ -27,6 +27,8 @@ _OVERFLOW_KEYS = {
     int(mjw.OverflowType.BROADPHASE): "sim.nconmax",
     int(mjw.OverflowType.NARROWPHASE): "sim.nconmax",
     int(mjw.OverflowType.CONTACT_MATCH): "sim.nconmax",
+    # More heightfield prisms touch one geom than MuJoCo keeps per pair: a coarser terrain grid has fewer.
+    int(mjw.OverflowType.HFIELD): "env.terrain.horizontalScale",
 }
 
 

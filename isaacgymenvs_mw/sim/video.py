@@ -156,8 +156,7 @@ class VideoRecorder:
         for g in range(m.ngeom):
             if not np.allclose(m.geom_rgba[g], default_grey) or int(m.geom_matid[g]) >= 0:
                 continue  # the asset chose a colour or material: keep it
-            is_plane = int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
-            m.geom_rgba[g] = _GROUND_RGBA if is_plane else _BODY_RGBA
+            m.geom_rgba[g] = _GROUND_RGBA if _is_ground(m, g) else _BODY_RGBA
 
     def _add_floor_grid(self) -> None:
         """Draw grid lines on each horizontal plane around the camera's target: without them a tracked robot
@@ -196,12 +195,13 @@ class VideoRecorder:
         return self.sim.body_id(track_body)
 
     def _model_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """World-frame bounding box (lo, hi) of every geom but planes, at the model's initial pose."""
+        """World-frame bounding box (lo, hi) of every geom but the ground (planes, a terrain heightfield), at the
+        model's initial pose: the camera frames the robot, not a 100 m terrain."""
         m, d = self.model, self.data
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
         corners = []
         for g in range(m.ngeom):
-            if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE):
+            if _is_ground(m, g):
                 continue
             center, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
             local = center + signs * half
@@ -311,3 +311,7 @@ class VideoRecorder:
         """Write out a clip in progress (shorter than ``length``) and release the renderer."""
         self._finish()
         self._release()  # runs renderer.close() once
+
+
+def _is_ground(m: mujoco.MjModel, g: int) -> bool:
+    return int(m.geom_type[g]) in (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD))

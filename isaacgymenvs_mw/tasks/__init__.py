@@ -21,8 +21,10 @@ from isaacgymenvs_mw.tasks.humanoid import Humanoid
 isaacgym_task_map: dict[str, type[VecTask]] = {
     "Ant": Ant,
     "Anymal": Anymal,
+    "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain
     "Cartpole": Cartpole,
     "Go1": Go1,
+    "Go1Terrain": Go1,
     "Humanoid": Humanoid,
 }
 

@@ -1,9 +1,17 @@
-"""Velocity-tracking locomotion on flat ground, shared by every legged robot (Anymal, Go1, ...).
+"""Velocity-tracking locomotion on flat ground or generated rough terrain, shared by every legged robot (Anymal,
+Go1, ...).
 
 The robot gets a command (forward and sideways velocity, yaw rate), sampled from YAML ranges and resampled on
 a timer, and must follow it. Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
 Rewards are legged_gym's: one ``_reward_<name>`` method per term, weighted by ``rewards.scales.<name>`` times the
 policy dt; a zero scale removes the term. Everything a user would tune lives in the task YAML.
+
+With ``env.terrain.type: heightfield`` the ground is a generated grid of sub-terrains (sim/terrain.py; rows =
+difficulty levels, columns = types). Each env owns a cell (level, column) and spawns on its platform; at reset
+legged_gym's curriculum moves it a level up when it walked farther than half a cell, a level down when it walked
+less than half of what its command asked for, and to a random level once past the top. A grid of height samples
+around the base (the height scan) goes to the critic, and to the policy with ``env.terrain.measureHeights``.
+Without ``env.terrain`` (or with ``type: plane``) none of this runs: the flat tasks' code path is unchanged.
 """
 
 from __future__ import annotations
@@ -12,8 +20,10 @@ import math
 
 import torch
 
-from isaacgymenvs_mw.sim import ModelRequest, load_spec, match_joint_values
+from isaacgymenvs_mw.sim import (ModelRequest, generate_terrain, heightfield_grid, load_spec, match_joint_values,
+                                 parse_terrain_config)
 from isaacgymenvs_mw.sim import match_body_names as _select
+from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
@@ -25,6 +35,7 @@ class LeggedTask(VecTask):
         self.cfg = cfg
         env = cfg["env"]
         self.record_eval_metrics = False
+        self._init_terrain_config(env.get("terrain"))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self.max_episode_length_s = float(env["episodeLength_s"])
@@ -33,6 +44,8 @@ class LeggedTask(VecTask):
         self._init_bodies(env["asset"])
         self._init_buffers(env)
         self._init_rewards(env["rewards"])
+        if self.terrain is not None:
+            self._init_terrain_state()
         self.build_observation_layouts()
 
     # ----------------------------------------------------------------- model
@@ -47,7 +60,93 @@ class LeggedTask(VecTask):
                 if body not in sensed:
                     sensed.append(body)
         request.contact_bodies = sensed
+        if self.terrain is not None:
+            if request.ground is None:
+                raise ValueError("env.terrain.type: heightfield replaces the ground plane and takes its friction: set "
+                                 "env.plane.enabled: True (env.plane.friction is the terrain's friction)")
+            request.terrain = self.terrain
         return request
+
+    # ----------------------------------------------------------------- terrain
+    _TASK_TERRAIN_KEYS = {  # env.terrain keys the task reads (the generator's are in sim/terrain.TerrainConfig)
+        "curriculum": True, "maxInitLevel": 5, "spawnJitter": 0.5, "measureHeights": True,
+        "scanLength": 1.6, "scanWidth": 1.0, "scanPointsX": 17, "scanPointsY": 11, "scanHeightOffset": 0.5,
+    }
+
+    def _init_terrain_config(self, raw) -> None:
+        """``env.terrain``: None (or type plane) keeps the flat ground; heightfield generates the terrain now,
+        before the model is built."""
+        self.terrain = None
+        if raw is None:
+            return
+        raw = dict(raw)
+        task_keys = {k: raw.pop(k, default) for k, default in self._TASK_TERRAIN_KEYS.items()}
+        cfg = parse_terrain_config(raw)
+        if cfg.type == "plane":
+            return
+        self.terrain = generate_terrain(cfg)
+        self.terrain_settings = task_keys
+        top = cfg.numLevels - 1
+        if not 0 <= int(task_keys["maxInitLevel"]) <= top:
+            raise ValueError(f"env.terrain.maxInitLevel={task_keys['maxInitLevel']} must be in [0, {top}] "
+                             f"(numLevels={cfg.numLevels})")
+        half = 0.5 * cfg.platformSize
+        if not 0.0 <= float(task_keys["spawnJitter"]) < half:
+            raise ValueError(f"env.terrain.spawnJitter={task_keys['spawnJitter']} must be in [0, platformSize/2 = "
+                             f"{half}): robots spawn on the cell's flat platform")
+        for key in ("scanPointsX", "scanPointsY"):
+            if int(task_keys[key]) < 1:
+                raise ValueError(f"env.terrain.{key}={task_keys[key]} must be >= 1")
+
+    def _init_terrain_state(self) -> None:
+        """Per-env cells, curriculum levels, the device height map and the height-scan points."""
+        n, dev, t, cfg = self.num_envs, self.device, self.terrain_settings, self.terrain.config
+        grid = heightfield_grid(self.sim.mj_model)  # what MuJoCo collides with, read back from the model
+        self.height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], dev)
+        self.terrain_origins = torch.tensor(self.terrain.origins, device=dev, dtype=torch.float)
+        self.num_levels = cfg.numLevels
+        self.cell_length = cfg.mapLength
+        self.curriculum = bool(t["curriculum"])
+        init_top = int(t["maxInitLevel"]) if self.curriculum else cfg.numLevels - 1
+        self.terrain_levels = torch.randint(0, init_top + 1, (n,), device=dev)
+        # Envs spread evenly over the columns (types), legged_gym's assignment.
+        self.terrain_types = torch.div(torch.arange(n, device=dev) * cfg.numTerrains, n, rounding_mode="floor")
+        self.env_origins = self.terrain_origins[self.terrain_levels, self.terrain_types].clone()
+        self.spawn_jitter = float(t["spawnJitter"])
+        self.measure_heights = bool(t["measureHeights"])
+        self.scan_offset = float(t["scanHeightOffset"])
+        xs = torch.linspace(-0.5, 0.5, int(t["scanPointsX"]), device=dev) * float(t["scanLength"])
+        ys = torch.linspace(-0.5, 0.5, int(t["scanPointsY"]), device=dev) * float(t["scanWidth"])
+        gx, gy = torch.meshgrid(xs, ys, indexing="ij")
+        self.scan_points = torch.stack((gx.flatten(), gy.flatten()), dim=1)  # (P, 2), base yaw frame
+        self.measured_heights = torch.zeros(n, self.scan_points.shape[0], device=dev)
+        self._curriculum_started = False  # the first (full) reset places envs; later resets move them
+
+    def scan_heights(self) -> torch.Tensor:
+        """Terrain heights (m, world z) under the scan points around each base, rotated by the base's yaw."""
+        q = self.sim.root_quat  # (w, x, y, z)
+        yaw = torch.atan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        c, s = torch.cos(yaw).unsqueeze(1), torch.sin(yaw).unsqueeze(1)
+        px, py = self.scan_points[:, 0], self.scan_points[:, 1]
+        pos = self.sim.root_pos
+        return self.height_map(pos[:, 0:1] + c * px - s * py, pos[:, 1:2] + s * px + c * py)
+
+    def _update_terrain_curriculum(self, mask: torch.Tensor) -> None:
+        """legged_gym's rule for the resetting envs: up past half a cell, down under half the commanded distance,
+        a random level once past the top."""
+        if not self.curriculum:
+            return
+        if not self._curriculum_started:  # the envs' first placement is no episode: nothing walked yet
+            self._curriculum_started = True
+            return
+        walked = torch.norm(self.sim.root_pos[:, :2] - self.env_origins[:, :2], dim=1)
+        up = walked > 0.5 * self.cell_length
+        asked = torch.norm(self.commands[:, :2], dim=1) * self.max_episode_length_s * 0.5
+        down = (walked < asked) & ~up
+        level = self.terrain_levels + up.long() - down.long()
+        level = torch.where(level >= self.num_levels, torch.randint_like(level, self.num_levels), level.clamp(min=0))
+        self.terrain_levels[:] = torch.where(mask, level, self.terrain_levels)
+        self.env_origins[:] = self.terrain_origins[self.terrain_levels, self.terrain_types]
 
     def _init_joint_settings(self, env: dict) -> None:
         names = self.sim.dof_names
@@ -151,7 +250,11 @@ class LeggedTask(VecTask):
             ObsTerm("dof_pos", nj, s["dofPos"]),        # minus the default pose
             ObsTerm("dof_vel", nj, s["dofVel"]),
             ObsTerm("actions", nj),                     # the action the drives received (delayed, if delayed)
-        ]
+        ] + ([self._height_scan_term()] if self.terrain is not None and self.measure_heights else [])
+
+    def _height_scan_term(self) -> ObsTerm:
+        # Clipped base height above each scan point minus scanHeightOffset (m), legged_gym's measurement.
+        return ObsTerm("height_scan", self.scan_points.shape[0], self.obs_scales["heightMeasurements"])
 
     def state_terms(self) -> list[ObsTerm]:
         # The critic sees the noiseless policy observation plus what the policy cannot measure.
@@ -161,7 +264,7 @@ class LeggedTask(VecTask):
             ObsTerm("added_base_mass", 1),  # kg
             ObsTerm("base_height", 1),      # m
             ObsTerm("feet_contact", len(self.feet)),  # 1 where the foot's contact force exceeds 1 N
-        ]
+        ] + ([self._height_scan_term()] if self.terrain is not None and not self.measure_heights else [])
 
     def deployment_info(self) -> dict:
         info = super().deployment_info()
@@ -228,7 +331,7 @@ class LeggedTask(VecTask):
 
     def compute_observations(self) -> None:
         s = self.obs_scales
-        obs = torch.cat((
+        terms = [
             self.base_lin_vel * s["linVel"],
             self.base_ang_vel * s["angVel"],
             self.projected_gravity,
@@ -236,13 +339,20 @@ class LeggedTask(VecTask):
             (self.sim.dof_pos - self.default_dof_pos) * s["dofPos"],
             self.sim.dof_vel * s["dofVel"],
             self.actions,
-        ), dim=-1)
+        ]
+        policy_scan, critic_scan = [], []  # both stay empty without terrain: the flat tasks' tensors as before
+        if self.terrain is not None:
+            self.measured_heights[:] = self.scan_heights()
+            below = self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights
+            scan = below.clamp(-1.0, 1.0) * s["heightMeasurements"]
+            (policy_scan if self.measure_heights else critic_scan).append(scan)
+        obs = torch.cat(terms + policy_scan, dim=-1)
         if self.num_states:
             feet_contact = (self.contact_force_norm[:, self._feet_idx] > 1.0).float()
             n = self.num_envs
-            self.states_buf[:] = torch.cat((obs, self._ground_friction.expand(n, 1),
+            self.states_buf[:] = torch.cat([obs, self._ground_friction.expand(n, 1),
                                             (self._base_mass - self._nominal_base_mass).expand(n, 1),
-                                            self.sim.root_pos[:, 2:3], feet_contact), dim=-1)
+                                            self.sim.root_pos[:, 2:3], feet_contact] + critic_scan, dim=-1)
         self.obs_buf[:] = obs  # the randomisation layer adds the observation noise
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
@@ -253,9 +363,17 @@ class LeggedTask(VecTask):
         # Scaling the default can leave a joint's range (Go1's knee); start inside the soft limits instead.
         dof_pos = torch.clamp(dof_pos, self.soft_dof_pos_limits[:, 0], self.soft_dof_pos_limits[:, 1])
         root_vel = self.reset_root_vel_range * (2.0 * torch.rand(n, 6, device=dev) - 1.0)
+        root_pos = self.base_init_pos
+        if self.terrain is not None:
+            self._update_terrain_curriculum(mask)
+            jitter = self.spawn_jitter * (2.0 * torch.rand(n, 2, device=dev) - 1.0)
+            root_pos = self.base_init_pos + self.env_origins
+            root_pos = torch.cat((root_pos[:, :2] + jitter, root_pos[:, 2:]), dim=1)
+            # Mean level over all envs, weighted by the episodes ending now (the learner divides by their count).
+            self.extras["episode_metrics"] = {"terrain_level": self.terrain_levels.float().mean() * mask.sum()}
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos),
-                             root_pos=self.base_init_pos, root_quat=self.base_init_quat,
+                             root_pos=root_pos, root_quat=self.base_init_quat,
                              root_lin_vel=root_vel[:, :3], root_ang_vel=root_vel[:, 3:],
                              refresh=False)  # observations read qpos/qvel only; the next step recomputes poses
         self._resample_commands(mask)
