@@ -33,6 +33,13 @@ def test_default_output_is_compact(tmp_path):
     # 2 steps per iteration: no Cartpole episode can have ended, and the line says how far the longest got
     (it_line,) = [ln for ln in out.splitlines() if ln.startswith("[it ")]
     assert "no episode ended yet (longest 2/" in it_line and "ep_rew" not in it_line, it_line
+    assert it_line.endswith("| ETA 0s"), it_line  # the last iteration: nothing left
+
+
+def test_eta_formats_the_time_left():
+    from isaacgymenvs_mw.learning.runner import _duration
+
+    assert [_duration(s) for s in (0.4, 42, 185, 3725)] == ["0s", "42s", "3m05s", "1h02m"]
 
 
 def test_verbose_shows_warp_and_rsl_rl_detail(tmp_path):

@@ -180,10 +180,12 @@ class Runner(OnPolicyRunner):
         else:  # a host read, but only on iterations where no episode ended
             longest = int(env.episode_length_buf.max())
             episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
+        # Time left at this run's mean iteration time so far (the first iteration's compilation included).
+        eta_s = self.train_time / max(len(self.history), 1) * (last_it - it - 1)
         print(
             f"[it {it + 1:>5}/{last_it}] steps {self.total_env_steps:>11,} | {fps:>10,.0f} steps/s | "
             f"{episodes} | value_loss {losses.get('value', float('nan')):8.4f} | "
-            f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s",
+            f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s | ETA {_duration(eta_s)}",
             flush=True,
         )
 
@@ -194,6 +196,16 @@ class Runner(OnPolicyRunner):
             return {}
         keys = [k for k in self.recent[-1] if k not in ("episodes", "nonfinite_resets")]
         return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
+
+
+def _duration(seconds: float) -> str:
+    """Seconds as 42s, 3m05s or 1h02m."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{s % 3600 // 60:02d}m"
 
 
 def evaluate(task, policy, device: str) -> dict:
