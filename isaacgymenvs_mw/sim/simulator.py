@@ -57,8 +57,9 @@ class Simulator:
             "opt.gravity" gives each world its own gravity.
         use_graphs: capture the physics as CUDA graphs (None: on CUDA devices).
         deterministic: MuJoCo Warp's ``opt.deterministic`` (all ``DeterminismType`` bits): floating-point atomic
-            sums in a fixed order, so that the same inputs on the same GPU give the same bits (see docs/config.md,
-            ``deterministic``). Costs speed on GPU; the CPU device runs kernels serially either way.
+            sums in a fixed order. With mujoco-warp 4.0.0 that is not enough for identical GPU runs (its contact and
+            constraint sorts are not implemented; docs/config.md, "Deterministic mode"). Costs speed on GPU (12x for
+            Go1 on an H100); the CPU device runs kernels serially and reproduces runs either way.
     """
 
     def __init__(
