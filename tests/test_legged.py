@@ -555,6 +555,31 @@ def test_reward_is_dt_weighted_sum_clamped_at_zero(robot):
     np.testing.assert_allclose(task.rew_buf.numpy(), np.maximum(total, 0.0), rtol=1e-5, atol=1e-7)
 
 
+def test_termination_penalty_is_added_after_the_clamp_at_zero(robot):
+    # legged_gym's order: clamp the other terms' sum at 0, then add the termination term, so a fall costs
+    # something even on a step whose penalties already outweigh the tracking reward.
+    keep = {"tracking_lin_vel": 1.5, "action_rate": -0.2, "termination": -50.0}
+    scales = yaml_cfg(robot).env.rewards.scales
+    overrides = [f"task.env.rewards.scales.{k}={keep.get(k, 0.0)}" for k in scales]
+    task = make_legged(robot, [*QUIET, *overrides])
+    rot = write_known_root_state(task, robot)
+    v_body = np.einsum("nji,nj->ni", rot, V_WORLD)
+    commands = np.array([[0.8, -0.3, 0.0], [-0.5, 0.6, 0.0], [3.0, -3.0, 0.0], [-1.1, -0.4, 0.0]])
+    task.commands[:] = torch.tensor(commands, dtype=torch.float32)
+    actions = torch.zeros(N, 12)
+    actions[2:] = 2.0  # envs 2 and 3: the action change drives the clamped sum below zero
+    task.actions[:] = actions
+    task.last_actions.zero_()
+    task.terminated = torch.tensor([True, False, True, False])
+    task.compute_reward()
+    tracking = np.exp(-np.sum((commands[:, :2] - v_body[:, :2]) ** 2, axis=1) / 0.25)
+    others = CONTROL_DT * (1.5 * tracking - 0.2 * np.sum(actions.numpy() ** 2, axis=1))
+    assert others[2] < 0 and others[3] < 0 < others[0]
+    fell = np.array([1.0, 0.0, 1.0, 0.0])
+    np.testing.assert_allclose(task.rew_buf.numpy(), np.maximum(others, 0.0) - 50.0 * CONTROL_DT * fell,
+                               rtol=1e-5, atol=1e-7)
+
+
 # -------------------------------------------------------------------------------- 9. observation layout
 def test_observation_layout_matches_rotation_math_and_mujoco_c(quiet_task, robot):
     task = quiet_task

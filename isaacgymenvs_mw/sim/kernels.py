@@ -109,18 +109,19 @@ def _cache_entries() -> set[str]:
 
 
 def load_kernels(device: wp.context.Device, entry_points: Sequence[Callable[[], None]],
-                 max_workers: int | None = None) -> int:
+                 max_workers: int | None = None) -> int | None:
     """Compile/load every module the entry points launch, on ``max_workers`` threads (default: all cores).
 
-    Returns how many modules were loaded now (0 when all were already loaded in this process). Anything the
-    recording misses is still compiled on first use, as Warp always does, so this can only save time.
+    Returns how many modules were loaded now (0 when all were already loaded in this process), or None when the
+    dry run failed and nothing was recorded. Anything the recording misses is still compiled on first use, as
+    Warp always does, so this can only save time.
     """
     try:
         recorded = _record_launches(entry_points)
     except Exception as err:  # noqa: BLE001  (a dry run that fails only loses the head start)
         if _state["verbose"]:
             print(f"{_PREFIX} Warp kernels load on first use ({type(err).__name__}: {err})", flush=True)
-        return 0
+        return None
     pending = [(m, bd) for m, bd in recorded if (m, str(device), bd) not in _loaded]
     if not pending:
         return 0

@@ -115,7 +115,7 @@ class Simulator:
             scratch = mjw.make_data(self.mj_model, nworld=1, nconmax=nconmax, njmax=njmax)
             entry_points = [lambda: mjw.step(self.model, scratch), lambda: mjw.forward(self.model, scratch),
                             lambda: mjw.kinematics(self.model, scratch)]
-            load_kernels(self.wp_device, entry_points)
+            self._kernels_recorded = load_kernels(self.wp_device, entry_points) is not None
 
     # ------------------------------------------------------------------ views
     def _bind_views(self) -> None:
@@ -234,7 +234,9 @@ class Simulator:
         if graph is None:
             with wp.ScopedDevice(self.wp_device):
                 fn()  # compiles the kernels outside the capture
-                with wp.ScopedCapture(device=self.wp_device) as capture:
+                # By default Warp loads every module imported so far before a capture: all of MuJoCo Warp's,
+                # dozens this model never launches. After a recorded dry run the ones it does are loaded.
+                with wp.ScopedCapture(device=self.wp_device, force_module_load=not self._kernels_recorded) as capture:
                     fn()
             graph = self._graphs[name] = capture.graph
         wp.capture_launch(graph)

@@ -235,6 +235,10 @@ class LeggedTask(VecTask):
         self.reward_names = [name for name, _ in active]
         self.reward_fns = [getattr(self, f"_reward_{name}") for name in self.reward_names]
         self.reward_weights = torch.tensor([s * self.control_dt for _, s in active], device=self.device)
+        # legged_gym adds the termination term after the clamp at 0: a fall still costs something while every
+        # other step is clamped to nothing (as early on, when random actions cost more than tracking earns).
+        self._clamped_terms = torch.tensor([name != "termination" for name in self.reward_names],
+                                           dtype=torch.float32, device=self.device)
         # One column per active term: per-episode sums, kept as one tensor so bookkeeping is a few kernels.
         self.episode_sums = torch.zeros(self.num_envs, len(active), device=self.device)
 
@@ -326,8 +330,11 @@ class LeggedTask(VecTask):
             return
         terms = torch.stack([fn() for fn in self.reward_fns], dim=1) * self.reward_weights
         self.episode_sums += terms
-        total = terms.sum(dim=1)
-        self.rew_buf[:] = total.clamp(min=0.0) if self.only_positive_rewards else total
+        if self.only_positive_rewards:
+            clamped = terms @ self._clamped_terms
+            self.rew_buf[:] = clamped.clamp(min=0.0) + terms @ (1.0 - self._clamped_terms)
+        else:
+            self.rew_buf[:] = terms.sum(dim=1)
 
     def compute_observations(self) -> None:
         s = self.obs_scales
