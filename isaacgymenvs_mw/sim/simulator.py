@@ -128,6 +128,11 @@ class Simulator:
         self.actuator_force = wp.to_torch(d.actuator_force)  # per actuator, after its force range
         self.xpos = wp.to_torch(d.xpos)
         self.xquat = wp.to_torch(d.xquat)
+        # Body velocities as MuJoCo keeps them: (angular, linear) in world axes, about the subtree centre of mass of
+        # the body's root (see body_lin_vel).
+        self.cvel = wp.to_torch(d.cvel)
+        self.subtree_com = wp.to_torch(d.subtree_com)
+        self._body_rootid = torch.tensor(m.body_rootid, device=self.device, dtype=torch.long)
         self.sensordata = wp.to_torch(d.sensordata)
         self.xfrc_applied = wp.to_torch(d.xfrc_applied)
         self.overflow = wp.to_torch(d.overflow)
@@ -353,6 +358,14 @@ class Simulator:
         if gid < 0:
             raise KeyError(f"no geom named '{name}'")
         return gid
+
+    def body_lin_vel(self, body_ids: torch.Tensor) -> torch.Tensor:
+        """(N, len(body_ids), 3) world-frame linear velocity of each body's origin (MuJoCo's mj_objectVelocity,
+        world axes), from the velocities and poses of the last physics step's forward pass."""
+        roots = self._body_rootid[body_ids]
+        vel = self.cvel[:, body_ids]
+        offset = self.xpos[:, body_ids] - self.subtree_com[:, roots]
+        return vel[..., 3:] + torch.cross(vel[..., :3], offset, dim=-1)
 
     def body_id(self, name: str) -> int:
         if name not in self.body_names:

@@ -180,6 +180,8 @@ class LeggedTask(VecTask):
             return torch.tensor([position[b] for b in bodies], device=self.device, dtype=torch.long)
 
         self._feet_idx = rows(self.feet)
+        self._feet_body_ids = torch.tensor([self.sim.body_id(b) for b in self.feet], device=self.device,
+                                           dtype=torch.long)  # rows of xpos / cvel
         self._term_idx = rows(self.terminate_bodies)
         self._pen_idx = rows(self.penalize_bodies)
 
@@ -191,6 +193,11 @@ class LeggedTask(VecTask):
         self.commands = torch.zeros(n, 3, device=dev)
         self.feet_air_time = torch.zeros(n, len(self.feet), device=dev)
         self.last_contacts = torch.zeros(n, len(self.feet), dtype=torch.bool, device=dev)
+        # feet_air_time_biped's clocks: time since each foot last touched down / lifted off (s).
+        self.feet_swing_time = torch.zeros(n, len(self.feet), device=dev)
+        self.feet_stance_time = torch.zeros(n, len(self.feet), device=dev)
+        height = env.get("terminationHeight")  # absent (the quadrupeds): no height termination
+        self.termination_height = None if height is None else float(height)
         self.gravity_vec = torch.tensor([0.0, 0.0, -1.0], device=dev).repeat(n, 1)
         init = env["baseInitState"]
         self.base_init_pos = torch.tensor(init["pos"], device=dev, dtype=torch.float).repeat(n, 1)
@@ -230,6 +237,19 @@ class LeggedTask(VecTask):
         self.only_positive_rewards = bool(rew.get("onlyPositiveRewards", True))
         self.base_height_target = float(rew.get("baseHeightTarget", 0.5))
         self.air_time_target = float(rew.get("feetAirTimeTarget", 0.5))
+        self.feet_clearance_target = float(rew.get("feetClearanceTarget", 0.08))
+        names = self.sim.dof_names
+
+        def joint_mask(key: str, term: str) -> torch.Tensor:
+            patterns = rew.get(key)
+            if float(scales.get(term, 0.0)) != 0.0 and not patterns:
+                raise ValueError(f"env.rewards.scales.{term} is not 0 but env.rewards.{key} names no joints: give a "
+                                 f"list of joint names or regular expressions (joints: {names})")
+            picked = match_joint_values({p: True for p in patterns or []}, names, f"env.rewards.{key}")
+            return torch.tensor([n in picked for n in names], device=self.device, dtype=torch.float)
+
+        self._deviation_mask = joint_mask("jointDeviationJoints", "joint_deviation")
+        self._upper_body_mask = joint_mask("upperBodyJoints", "upper_body_posture")
         # Zero-scale terms are not computed at all; the others are weighted by the policy dt (legged_gym).
         active = [(name, float(s)) for name, s in scales.items() if float(s) != 0.0]
         self.reward_names = [name for name, _ in active]
@@ -320,6 +340,8 @@ class LeggedTask(VecTask):
 
     def check_termination(self) -> None:
         hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)
+        if self.termination_height is not None:
+            hit |= self._base_height() < self.termination_height
         timeout = self.progress_buf >= self.max_episode_length - 1
         self.reset_buf[:] = (hit | timeout).long()
         self.terminated = hit & ~timeout
@@ -390,6 +412,8 @@ class LeggedTask(VecTask):
         self.actions *= rows
         self.last_dof_vel *= rows
         self.feet_air_time *= rows
+        self.feet_swing_time *= rows
+        self.feet_stance_time *= rows
         self.last_contacts &= rows
         self.progress_buf.masked_fill_(mask, 0)
         # Report the finished episodes' per-term sums (summed over envs; the learner divides by the count).
@@ -423,7 +447,8 @@ class LeggedTask(VecTask):
         return torch.sum(torch.square(self.projected_gravity[:, :2]), dim=1)
 
     def _reward_base_height(self) -> torch.Tensor:
-        return torch.square(self.sim.root_pos[:, 2] - self.base_height_target)
+        # Squared distance of the base's height above the ground from baseHeightTarget.
+        return torch.square(self._base_height() - self.base_height_target)
 
     def _reward_torques(self) -> torch.Tensor:
         return torch.sum(torch.square(self.torques), dim=1)
@@ -460,9 +485,61 @@ class LeggedTask(VecTask):
         self.feet_air_time *= ~touching
         return reward
 
+    def _reward_alive(self) -> torch.Tensor:
+        # A constant bonus for every step the robot has not fallen (unitree_rl_gym's `alive`).
+        return (~self.terminated).float()
+
+    def _reward_feet_air_time_biped(self) -> torch.Tensor:
+        # Time in the current single-stance phase, capped at feetAirTimeTarget, while commanded to move: pays
+        # alternating steps with one foot down (Isaac Lab's feet_air_time_positive_biped).
+        contact = self._feet_contact()
+        self.feet_stance_time[:] = torch.where(contact, self.feet_stance_time + self.control_dt, 0.0)
+        self.feet_swing_time[:] = torch.where(contact, 0.0, self.feet_swing_time + self.control_dt)
+        phase_time = torch.where(contact, self.feet_stance_time, self.feet_swing_time)
+        single_stance = contact.sum(dim=1) == 1
+        reward = torch.where(single_stance, phase_time.min(dim=1).values, 0.0).clamp(max=self.air_time_target)
+        return reward * (torch.norm(self.commands[:, :2], dim=1) > 0.1)
+
+    def _reward_feet_slip(self) -> torch.Tensor:
+        # Horizontal speed (m/s) of the feet that touch the ground, summed over feet.
+        speed = torch.norm(self._feet_lin_vel()[..., :2], dim=-1)
+        return torch.sum(speed * self._feet_contact(), dim=1)
+
+    def _reward_feet_clearance(self) -> torch.Tensor:
+        # Squared miss of feetClearanceTarget by each swinging foot's height above the ground, summed over feet.
+        height = self.sim.xpos[:, self._feet_body_ids, 2]
+        if self.terrain is not None:
+            feet = self.sim.xpos[:, self._feet_body_ids]
+            height = height - self.height_map(feet[..., 0], feet[..., 1])
+        return torch.sum(torch.square(height - self.feet_clearance_target) * ~self._feet_contact(), dim=1)
+
+    def _reward_joint_deviation(self) -> torch.Tensor:
+        # L1 distance from the default pose of the joints in rewards.jointDeviationJoints (a biped's hip roll/yaw).
+        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos) * self._deviation_mask, dim=1)
+
+    def _reward_upper_body_posture(self) -> torch.Tensor:
+        # L1 distance from the default pose of the joints in rewards.upperBodyJoints (waist and arms).
+        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos) * self._upper_body_mask, dim=1)
+
     def _reward_stand_still(self) -> torch.Tensor:
         still = torch.norm(self.commands[:, :2], dim=1) < 0.1
         return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos), dim=1) * still
+
+    # ----------------------------------------------------------------- helpers
+    def _base_height(self) -> torch.Tensor:
+        """Base height (m) above the ground under it: world z on flat ground, minus the terrain's height there."""
+        pos = self.sim.root_pos
+        if self.terrain is None:
+            return pos[:, 2]
+        return pos[:, 2] - self.height_map(pos[:, 0], pos[:, 1])
+
+    def _feet_contact(self) -> torch.Tensor:
+        """(N, feet) bool: the foot's contact force exceeds 1 N."""
+        return self.contact_force_norm[:, self._feet_idx] > 1.0
+
+    def _feet_lin_vel(self) -> torch.Tensor:
+        """(N, feet, 3) world-frame linear velocity of each foot body's origin."""
+        return self.sim.body_lin_vel(self._feet_body_ids)
 
 
 def _body_names(spec) -> list[str]:
