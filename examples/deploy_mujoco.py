@@ -3,6 +3,10 @@
 history), actions become joint targets for the model's position actuators (PD), and the velocity tracking error it
 reaches for a fixed command is reported. See docs/deploy.md.
 
+MuJoCo C solves the contacts to convergence here (MuJoCo's default iteration limits), not with the few solver
+iterations the task trains with: MuJoCo Warp's Newton solver lands near the converged solution within them, MuJoCo
+C's does not (docs/deploy.md, "Solver iterations"); ``--trained-solver`` keeps the exported limits.
+
     python examples/deploy_mujoco.py runs/Go1/<stamp>/exported --command 1.0 0.0 0.0 --seconds 20
 
 Prints one JSON object. Needs mujoco and onnxruntime only (not warp, not torch).
@@ -27,10 +31,26 @@ def quat_rotate_inverse(quat: np.ndarray, vec: np.ndarray) -> np.ndarray:
     return out
 
 
-class Deployment:
-    """One robot in MuJoCo C driven by an exported policy, following ``policy.json``."""
+def converge_solver(model: mujoco.MjModel) -> None:
+    """Raise the constraint solver's iteration limits (in place) to MuJoCo's defaults, where they are lower.
 
-    def __init__(self, export_dir: Path, model: mujoco.MjModel | None = None) -> None:
+    The task trains with a few Newton iterations (sim.iterations, sim.ls_iterations: 4 and 8 for the legged
+    robots). MuJoCo Warp's solver ends those near the converged solution; MuJoCo C's, from the same state, often
+    does not while the contact set changes (a foot landing): joint speeds then end tens of rad/s off. The converged
+    solution is the physics the policy learnt on; with it both engines agree (docs/deploy.md, "Solver iterations").
+    """
+    default = mujoco.MjOption()
+    model.opt.iterations = max(model.opt.iterations, default.iterations)
+    model.opt.ls_iterations = max(model.opt.ls_iterations, default.ls_iterations)
+
+
+class Deployment:
+    """One robot in MuJoCo C driven by an exported policy, following ``policy.json``.
+
+    ``trained_solver``: keep the exported model's solver iteration limits instead of solving to convergence.
+    """
+
+    def __init__(self, export_dir: Path, model: mujoco.MjModel | None = None, trained_solver: bool = False) -> None:
         export_dir = Path(export_dir)
         self.meta = json.loads((export_dir / "policy.json").read_text())
         meta = self.meta
@@ -38,6 +58,8 @@ class Deployment:
             if key not in meta:
                 raise ValueError(f"{export_dir / 'policy.json'} has no '{key}': not a legged task's export")
         self.model = model or mujoco.MjModel.from_binary_path(str(export_dir / meta["files"]["mujoco_model"]))
+        if not trained_solver:
+            converge_solver(self.model)
         self.data = mujoco.MjData(self.model)
         m = self.model
         names = meta["joint_names"]
@@ -129,9 +151,10 @@ def load_session(export_dir: Path):
     return ort.InferenceSession(str(Path(export_dir) / "policy.onnx"), providers=["CPUExecutionProvider"])
 
 
-def run(export_dir: Path, command: tuple[float, float, float], seconds: float, settle: float) -> dict:
+def run(export_dir: Path, command: tuple[float, float, float], seconds: float, settle: float,
+        trained_solver: bool = False) -> dict:
     """Follow ``command`` for ``seconds``; errors are means over the steps after the first ``settle`` seconds."""
-    robot, session = Deployment(export_dir), load_session(export_dir)
+    robot, session = Deployment(export_dir, trained_solver=trained_solver), load_session(export_dir)
     robot.reset()
     robot.command[:] = command
     steps = int(round(seconds / robot.meta["control_dt"]))
@@ -161,6 +184,7 @@ def run(export_dir: Path, command: tuple[float, float, float], seconds: float, s
         "fell": fell,
         "min_base_height": min(heights) if heights else None,
         "distance_xy": float(np.linalg.norm(robot.data.qpos[0:2] - start[0:2])),
+        "solver_iterations": [int(robot.model.opt.iterations), int(robot.model.opt.ls_iterations)],
         "mujoco": mujoco.__version__,
         "trained_with": robot.meta["versions"],
     }
@@ -172,8 +196,11 @@ def main() -> None:
     parser.add_argument("--command", type=float, nargs=3, default=(1.0, 0.0, 0.0), metavar=("VX", "VY", "YAW"))
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--settle", type=float, default=1.0, help="seconds left out of the error (start-up)")
+    parser.add_argument("--trained-solver", action="store_true",
+                        help="keep the exported solver iteration limits (MuJoCo C then stops short of convergence)")
     args = parser.parse_args()
-    print(json.dumps(run(args.export_dir, tuple(args.command), args.seconds, args.settle)), flush=True)
+    result = run(args.export_dir, tuple(args.command), args.seconds, args.settle, args.trained_solver)
+    print(json.dumps(result), flush=True)
 
 
 if __name__ == "__main__":

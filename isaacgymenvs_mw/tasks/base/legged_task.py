@@ -322,8 +322,7 @@ class LeggedTask(VecTask):
         done = self.reset_buf != 0
         self.reset_idx(done)
         self._resample_commands((self.progress_buf % self.command_resample_steps == 0) & ~done)
-        self._refresh_state()
-        self.compute_observations()
+        self.compute_observations()  # reset_idx refreshed the base state of the envs it reset
         if self.record_eval_metrics:
             err = torch.norm(self.commands[:, :2] - self.base_lin_vel[:, :2], dim=1)
             self.extras["eval_metrics"] = {"lin_vel_tracking_error": err}
@@ -420,6 +419,8 @@ class LeggedTask(VecTask):
         finished = (self.episode_sums * mask.unsqueeze(1)).sum(dim=0)
         self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
         self.episode_sums *= rows
+        # The base velocities and gravity the observation reads, for the new states (VecTask.reset observes next).
+        self._refresh_state()
 
     def _resample_commands(self, mask: torch.Tensor) -> None:
         lo, hi = self.command_ranges[:, 0], self.command_ranges[:, 1]
