@@ -59,6 +59,11 @@ QUIET = ["task.task.randomize=False"]
 AT_REST = ["task.env.resetDofPosScale=[1.0,1.0]"]  # G1.yaml already starts at rest (resetRootVelocityRange 0)
 
 
+def default_angle(joint: str) -> float:
+    """The joint's angle in DEFAULT_POSE: the longest fragment of its name that has one, else 0."""
+    return figure(joint, DEFAULT_POSE) if any(k in joint for k in DEFAULT_POSE) else 0.0
+
+
 def figure(joint: str, table: dict):
     """The entry of ``table`` whose key is the longest fragment of the joint's name."""
     keys = [k for k in table if k in joint]
@@ -92,10 +97,10 @@ def test_model_matches_unitree_figures():
 
 def test_locked_default_pose_stands_on_its_soles():
     """The default pose welded rigid (joints removed, MuJoCo C): the soles carry it for 2 s, so masses, centre of
-    mass and contact points agree; what topples the jointed robot is its joint compliance (next test)."""
+    mass and contact points agree; what topples the jointed robot is its joint compliance (tests below)."""
     spec = mujoco.MjSpec.from_file(str(ASSET))
     for joint in [j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_HINGE]:
-        angle = next((v for k, v in sorted(DEFAULT_POSE.items(), key=lambda kv: -len(kv[0])) if k in joint.name), 0.0)
+        angle = default_angle(joint.name)
         turn = np.zeros(4)
         mujoco.mju_axisAngle2Quat(turn, np.asarray(joint.axis, dtype=float), angle)
         quat = np.zeros(4)
@@ -113,11 +118,50 @@ def test_locked_default_pose_stands_on_its_soles():
     assert np.abs(d.qvel).max() < 1e-3 and d.ncon == 8  # at rest on the eight sole spheres
 
 
-def test_zero_actions_hold_the_default_pose_under_pd(g1):
-    """Zero actions from rest: the PD drives hold the default pose. A biped under joint PD alone is an inverted
-    pendulum (ankle stiffness 2 x 40 N m/rad against m g h = 34 kg x 9.81 x 0.7 m ~ 233 N m/rad): it stays up
-    for about 1.3 s and then topples, so the policy must balance; the first 0.5 s are checked here."""
+def ankle_stiffness_bound() -> tuple[float, float]:
+    """(m g h / 2, CoM lead): the least stiffness per ankle-pitch drive for which the default pose, feet flat, is
+    not an inverted pendulum. Leaning the rigid body by theta about the two ankle-pitch axes moves its centre of
+    mass by h theta: gravity pushes on with m g h theta, the two drives pull back with 2 kp theta, so kp < m g h / 2
+    falls whatever the damping (any compliance of knees and hips only adds to the lean). The lead is the centre of
+    mass's horizontal distance in front of the ankle axes, which the drives must also hold (m g lead)."""
+    m = mujoco.MjModel.from_xml_path(str(ASSET))
+    d = mujoco.MjData(m)
+    d.qpos[2] = 0.784  # upright, standing on the soles
+    for j in range(1, m.njnt):
+        d.qpos[m.jnt_qposadr[j]] = default_angle(m.joint(j).name)
+    mujoco.mj_forward(m, d)
+    axes = np.mean([d.xanchor[m.joint(f"{s}_ankle_pitch_joint").id] for s in ("left", "right")], axis=0)
+    com = d.subtree_com[m.body("pelvis").id]
+    mass = m.body_subtreemass[m.body("pelvis").id]
+    return mass * 9.81 * (com[2] - axes[2]) / 2.0, com[0] - axes[0]
+
+
+def test_default_pose_needs_stiffer_ankles_than_the_published_gains(g1):
+    """Why the G1 cannot stand on PD alone with any published gain set: the bound m g h / 2 is about 109 N m/rad
+    per ankle, and unitree_rl_gym gives 40 (menagerie's g1_mjx 20, mjlab's armature x (2 pi 10 Hz)^2 28.5). The
+    default pose also carries its centre of mass ~3.7 cm in front of the ankle axes (over the middle of the soles,
+    which reach 12 cm forward of the axes), a steady 12 N m that the drives hold."""
+    bound, lead = ankle_stiffness_bound()
+    assert 100.0 < bound < 120.0
+    assert 0.03 < lead < 0.045
+    gains = g1.sim.joint_pd_gains()
+    assert gains["left_ankle_pitch_joint"][0] == gains["right_ankle_pitch_joint"][0] == 40.0  # cfg/task/G1.yaml
+    assert gains["left_ankle_pitch_joint"][0] < bound / 2
+
+
+def test_zero_actions_with_the_published_gains_topple_forward(g1):
+    """Zero actions from rest with G1.yaml's gains: the first 0.5 s hold the pose, then the body leans forward
+    about the ankles, as the bound says, and the episode ends before 2 s: the policy has to balance from the
+    first step. MuJoCo C's mj_step on the same model falls too (the pelvis below terminationHeight within 2 s;
+    the trajectories part once the feet rock, so only the outcome is compared)."""
     g1.reset_idx(torch.arange(N))
+    m = g1.sim.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = g1.sim.qpos[0].numpy()
+    d.ctrl[:] = g1.default_dof_pos.reshape(-1).numpy()
+    while d.time < 2.0 and d.qpos[2] > 0.4:  # G1.yaml terminationHeight
+        mujoco.mj_step(m, d)
+    assert d.qpos[2] < 0.4
     for _ in range(int(0.5 / CONTROL_DT)):
         g1.step(g1.zero_actions())
         assert not bool(g1.reset_buf.any())
@@ -125,6 +169,44 @@ def test_zero_actions_hold_the_default_pose_under_pd(g1):
     assert torch.all((g1.sim.dof_pos - g1.default_dof_pos).abs() < 0.15)
     assert torch.all(g1.projected_gravity[:, 2] < -0.99)  # within 8 degrees of upright
     assert bool(g1._feet_contact().all())
+    lead = []
+    for _ in range(int(1.5 / CONTROL_DT)):
+        lead.append(g1.sim.root_pos[:, 0].clone())
+        g1.step(g1.zero_actions())
+        if bool(g1.reset_buf.all()):
+            break
+    assert bool(g1.reset_buf.all()) and bool(g1.terminated.all())  # fell (not a timeout) before 2 s
+    assert torch.all(lead[-1] > 0.1)  # forward, over the toes
+
+
+def test_zero_actions_stand_2s_with_ankles_above_the_bound():
+    """The issue's "stands 2 s with zero actions (PD at the default pose)" where physics allows it: the ankle
+    drives set to 300 N m/rad (> 2.5 x the bound; every other figure as G1.yaml) hold the default pose for 2 s in
+    MuJoCo Warp, and MuJoCo C's mj_step on the same model agrees. The physics step is 2.5 ms (8 per 20 ms policy
+    step): at G1.yaml's 5 ms these stiff ankles make the light feet rock heel to toe (ankle velocities reversing
+    every step), and whether the robot falls then depends on the damping and on rounding."""
+    bound, _ = ankle_stiffness_bound()
+    assert 300.0 > 2.5 * bound
+    task = isaacgymenvs_mw.make("G1", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+                                overrides=QUIET + AT_REST + ["task.env.control.stiffness.ankle=300.0",
+                                                             "task.sim.dt=0.0025", "task.env.controlFrequencyInv=8"])
+    task.reset_idx(torch.arange(1))
+    m = task.sim.mj_model
+    assert m.opt.timestep == 0.0025 and task.control_dt == pytest.approx(CONTROL_DT)
+    d = mujoco.MjData(m)
+    d.qpos[:] = task.sim.qpos[0].numpy()
+    d.ctrl[:] = task.default_dof_pos.reshape(-1).numpy()
+    for _ in range(int(2.0 / CONTROL_DT)):
+        task.step(task.zero_actions())
+        assert not bool(task.reset_buf.any())
+        assert abs(float(task.sim.root_pos[0, 2]) - 0.784) < 0.02  # the standing height of the locked pose
+    for _ in range(int(2.0 / CONTROL_DT) * 8):
+        mujoco.mj_step(m, d)
+    np.testing.assert_allclose(task.sim.qpos[0].numpy(), d.qpos, atol=1e-4)
+    assert float((task.sim.dof_pos - task.default_dof_pos).abs().max()) < 0.05
+    assert float(task.projected_gravity[0, 2]) < -0.995  # within 6 degrees of upright
+    assert float(task.sim.qvel[0].abs().max()) < 0.05  # at rest, not falling slowly
+    assert bool(task._feet_contact().all())
 
 
 def test_task_model_drives_and_layout(g1):
@@ -137,8 +219,7 @@ def test_task_model_drives_and_layout(g1):
         assert gains[name][0] == pytest.approx(figure(name, yaml_kp)), name
     assert g1.feet == ["left_ankle_roll_link", "right_ankle_roll_link"]
     assert g1.terminate_bodies == ["pelvis", "torso_link"]
-    expected = torch.tensor([next((v for k, v in sorted(DEFAULT_POSE.items(), key=lambda kv: -len(kv[0])) if k in n),
-                                  0.0) for n in UNITREE_ORDER])
+    expected = torch.tensor([default_angle(n) for n in UNITREE_ORDER])
     assert torch.allclose(g1.default_dof_pos, expected)
     # Observation: 12 + 3 x 23 (the legged terms scale with the joint count); critic: + 5 (2 feet).
     sizes = {t.name: t.size for t in g1.obs_layout.terms}
