@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import xml.etree.ElementTree as ET
 from collections import defaultdict
 from pathlib import Path
@@ -578,6 +579,44 @@ def test_termination_penalty_is_added_after_the_clamp_at_zero(robot):
     fell = np.array([1.0, 0.0, 1.0, 0.0])
     np.testing.assert_allclose(task.rew_buf.numpy(), np.maximum(others, 0.0) - 50.0 * CONTROL_DT * fell,
                                rtol=1e-5, atol=1e-7)
+
+
+def test_penalty_curriculum_scales_penalties_linearly_over_env_steps(robot):
+    # env.rewards.penaltyCurriculum {start, steps}: negative-scale terms (termination aside) are multiplied by
+    # start + (1 - start) * min(1, env steps / steps); positive terms and termination keep their scale.
+    keep = {"tracking_lin_vel": 1.5, "action_rate": -0.2, "termination": -50.0}
+    scales = yaml_cfg(robot).env.rewards.scales
+    overrides = [f"task.env.rewards.scales.{k}={keep.get(k, 0.0)}" for k in scales]
+    curriculum = ["+task.env.rewards.penaltyCurriculum.start=0.25", "+task.env.rewards.penaltyCurriculum.steps=100"]
+    task = make_legged(robot, [*QUIET, *overrides, *curriculum, "task.env.rewards.onlyPositiveRewards=False"])
+    rot = write_known_root_state(task, robot)
+    v_body = np.einsum("nji,nj->ni", rot, V_WORLD)
+    commands = np.array([[0.8, -0.3, 0.0], [-0.5, 0.6, 0.0], [3.0, -3.0, 0.0], [-1.1, -0.4, 0.0]])
+    task.commands[:] = torch.tensor(commands, dtype=torch.float32)
+    actions = torch.full((N, 12), 0.5)
+    task.actions[:] = actions
+    task.last_actions.zero_()
+    task.terminated = torch.tensor([True, False, False, True])
+    tracking = np.exp(-np.sum((commands[:, :2] - v_body[:, :2]) ** 2, axis=1) / 0.25)
+    action_rate = np.sum(actions.numpy() ** 2, axis=1)
+    fell = np.array([1.0, 0.0, 0.0, 1.0])
+    for steps_done, factor in ((0, 0.25), (40, 0.25 + 0.75 * 0.4), (100, 1.0), (1000, 1.0)):
+        task.randomizer.step_count.fill_(steps_done)
+        task.compute_reward()
+        expected = CONTROL_DT * (1.5 * tracking - factor * 0.2 * action_rate - 50.0 * fell)
+        np.testing.assert_allclose(task.rew_buf.numpy(), expected, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("value, complaint", [
+    ({"start": 0.0, "steps": 10}, "start must be in (0, 1]"),
+    ({"start": 0.5, "steps": 0}, "steps must be a whole number >= 1"),
+    ({"start": 0.5}, "exactly the keys start and steps"),
+])
+def test_penalty_curriculum_bad_input_names_the_key(value, complaint):
+    overrides = [f"+task.env.rewards.penaltyCurriculum.{k}={v}" for k, v in value.items()]
+    with pytest.raises(ValueError, match=re.escape(complaint)) as err:
+        make_legged("Go1", [*QUIET, *overrides])
+    assert "env.rewards.penaltyCurriculum" in str(err.value)
 
 
 # -------------------------------------------------------------------------------- 9. observation layout

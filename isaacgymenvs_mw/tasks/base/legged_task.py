@@ -261,6 +261,39 @@ class LeggedTask(VecTask):
                                            dtype=torch.float32, device=self.device)
         # One column per active term: per-episode sums, kept as one tensor so bookkeeping is a few kernels.
         self.episode_sums = torch.zeros(self.num_envs, len(active), device=self.device)
+        self._init_penalty_curriculum(rew.get("penaltyCurriculum"))
+
+    def _init_penalty_curriculum(self, cfg) -> None:
+        """Penalties (negative scales, termination aside) start at ``start`` x their scale and reach the full scale
+        linearly over ``steps`` env steps per env (Hwangbo et al. 2019's cost curriculum for ANYmal, made linear).
+        Early random actions then cost less than tracking earns, so a clamped reward is not 0 from the start."""
+        self._penalty_curriculum = None
+        if cfg is None:
+            return
+        key = "env.rewards.penaltyCurriculum"
+        if not hasattr(cfg, "keys") or set(cfg.keys()) != {"start", "steps"}:
+            raise ValueError(f"{key} must be a mapping with exactly the keys start and steps, got {cfg!r}")
+        try:
+            start, steps = float(cfg["start"]), cfg["steps"]
+        except (TypeError, ValueError):
+            raise ValueError(f"{key}.start must be a number in (0, 1], got {cfg['start']!r}") from None
+        if not 0.0 < start <= 1.0:
+            raise ValueError(f"{key}.start must be in (0, 1] (the penalties' first scale factor), got {start}")
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ValueError(f"{key}.steps must be a whole number >= 1 (env steps per env), got {steps!r}")
+        penalised = [float(w) < 0.0 and name != "termination" for name, w in zip(self.reward_names,
+                                                                                self.reward_weights.tolist())]
+        self._penalty_curriculum = (start, float(steps))
+        self._penalty_terms = torch.tensor(penalised, dtype=torch.float32, device=self.device)
+
+    def penalty_factor(self) -> torch.Tensor | float:
+        """The factor on the penalties now: 1 without a curriculum; counts the env steps the randomisation layer
+        counts (resumed from a checkpoint's training progress)."""
+        if self._penalty_curriculum is None:
+            return 1.0
+        start, steps = self._penalty_curriculum
+        progress = torch.clamp(self.randomizer.step_count / steps, max=1.0)
+        return start + (1.0 - start) * progress
 
     # ----------------------------------------------------------- observations
     def observation_terms(self) -> list[ObsTerm]:
@@ -350,6 +383,8 @@ class LeggedTask(VecTask):
             self.rew_buf.zero_()
             return
         terms = torch.stack([fn() for fn in self.reward_fns], dim=1) * self.reward_weights
+        if self._penalty_curriculum is not None:
+            terms = terms * (1.0 + self._penalty_terms * (self.penalty_factor() - 1.0))
         self.episode_sums += terms
         if self.only_positive_rewards:
             clamped = terms @ self._clamped_terms
