@@ -229,8 +229,7 @@ class LocomotionTask(VecTask):
             # Speed of the torso along +x (world frame, m/s), before any reset replaces the state.
             self.extras["eval_metrics"] = {"forward_speed": self.sim.root_lin_vel[:, 0].clone()}
         self.reset_idx(self.reset_buf != 0)
-        self._refresh_torso_state()
-        self.compute_observations()
+        self.compute_observations()  # reset_idx refreshed the torso state of the envs it reset
 
     def _speed_toward_target(self) -> torch.Tensor:
         """The drop in horizontal distance to the target over the step, / policy dt (IsaacGymEnvs' potential
@@ -269,6 +268,9 @@ class LocomotionTask(VecTask):
         finished = (self.episode_sums * mask.unsqueeze(1)).sum(dim=0)
         self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
         self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
+        # The torso state the observation reads, for the new states: VecTask.reset observes right after this, and
+        # a stale first observation (the torso state from before the reset) made the first episodes fall more.
+        self._refresh_torso_state()
 
     # ------------------------------------------------------------ reward terms
     # Each returns its contribution to the step's reward (sign and weight included), before rewardScale.
