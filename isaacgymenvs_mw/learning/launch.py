@@ -83,7 +83,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         if videos:
             _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval")
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
-        _load(runner, checkpoint, task)
+        load_checkpoint(runner, checkpoint, task)
         policy = runner.get_inference_policy(device=task.rl_device)
         onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported", task=task)
         print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
@@ -100,7 +100,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
 
     runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
     if checkpoint is not None:
-        _load(runner, checkpoint, task)
+        load_checkpoint(runner, checkpoint, task)
         print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
     if is_main:
         run_dir = _new_run_dir(run_dir)
@@ -240,7 +240,7 @@ def _checkpoint_path(cfg: DictConfig) -> Path | None:
     return path
 
 
-def _load(runner: Runner, checkpoint: Path, task) -> None:
+def load_checkpoint(runner: Runner, checkpoint: Path, task) -> None:
     """Load a checkpoint after checking that its policy fits this task's observation and action sizes."""
     state = torch.load(checkpoint, map_location=task.rl_device, weights_only=False)
     actor = state.get("actor_state_dict", {})

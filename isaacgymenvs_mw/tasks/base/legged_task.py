@@ -281,10 +281,8 @@ class LeggedTask(VecTask):
             raise ValueError(f"{key}.start must be in (0, 1] (the penalties' first scale factor), got {start}")
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ValueError(f"{key}.steps must be a whole number >= 1 (env steps per env), got {steps!r}")
-        penalised = [float(w) < 0.0 and name != "termination" for name, w in zip(self.reward_names,
-                                                                                self.reward_weights.tolist())]
         self._penalty_curriculum = (start, float(steps))
-        self._penalty_terms = torch.tensor(penalised, dtype=torch.float32, device=self.device)
+        self._penalty_terms = (self.reward_weights < 0.0).float() * self._clamped_terms  # termination aside
 
     def penalty_factor(self) -> torch.Tensor | float:
         """The factor on the penalties now: 1 without a curriculum; counts the env steps the randomisation layer
@@ -411,7 +409,7 @@ class LeggedTask(VecTask):
             (policy_scan if self.measure_heights else critic_scan).append(scan)
         obs = torch.cat(terms + policy_scan, dim=-1)
         if self.num_states:
-            feet_contact = (self.contact_force_norm[:, self._feet_idx] > 1.0).float()
+            feet_contact = self._feet_contact().float()
             n = self.num_envs
             self.states_buf[:] = torch.cat([obs, self._ground_friction.expand(n, 1),
                                             (self._base_mass - self._nominal_base_mass).expand(n, 1),
@@ -511,7 +509,7 @@ class LeggedTask(VecTask):
         return torch.sum(below + above, dim=1)
 
     def _reward_feet_air_time(self) -> torch.Tensor:
-        contact = self.contact_force_norm[:, self._feet_idx] > 1.0
+        contact = self._feet_contact()
         touching = contact | self.last_contacts  # MuJoCo contacts can flicker for a step
         self.last_contacts[:] = contact
         first_contact = (self.feet_air_time > 0.0) & touching
@@ -543,31 +541,36 @@ class LeggedTask(VecTask):
 
     def _reward_feet_clearance(self) -> torch.Tensor:
         # Squared miss of feetClearanceTarget by each swinging foot's height above the ground, summed over feet.
-        height = self.sim.xpos[:, self._feet_body_ids, 2]
-        if self.terrain is not None:
-            feet = self.sim.xpos[:, self._feet_body_ids]
-            height = height - self.height_map(feet[..., 0], feet[..., 1])
+        height = self._height_above_ground(self.sim.xpos[:, self._feet_body_ids])
         return torch.sum(torch.square(height - self.feet_clearance_target) * ~self._feet_contact(), dim=1)
 
     def _reward_joint_deviation(self) -> torch.Tensor:
         # L1 distance from the default pose of the joints in rewards.jointDeviationJoints (a biped's hip roll/yaw).
-        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos) * self._deviation_mask, dim=1)
+        return self._pose_deviation(self._deviation_mask)
 
     def _reward_upper_body_posture(self) -> torch.Tensor:
         # L1 distance from the default pose of the joints in rewards.upperBodyJoints (waist and arms).
-        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos) * self._upper_body_mask, dim=1)
+        return self._pose_deviation(self._upper_body_mask)
 
     def _reward_stand_still(self) -> torch.Tensor:
         still = torch.norm(self.commands[:, :2], dim=1) < 0.1
-        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos), dim=1) * still
+        return self._pose_deviation() * still
 
     # ----------------------------------------------------------------- helpers
-    def _base_height(self) -> torch.Tensor:
-        """Base height (m) above the ground under it: world z on flat ground, minus the terrain's height there."""
-        pos = self.sim.root_pos
+    def _height_above_ground(self, pos: torch.Tensor) -> torch.Tensor:
+        """Height (m) of points (..., 3) above the ground under them: world z on flat ground, minus the terrain's
+        height there."""
         if self.terrain is None:
-            return pos[:, 2]
-        return pos[:, 2] - self.height_map(pos[:, 0], pos[:, 1])
+            return pos[..., 2]
+        return pos[..., 2] - self.height_map(pos[..., 0], pos[..., 1])
+
+    def _base_height(self) -> torch.Tensor:
+        """Base height (m) above the ground under it."""
+        return self._height_above_ground(self.sim.root_pos)
+
+    def _pose_deviation(self, joints: torch.Tensor | float = 1.0) -> torch.Tensor:
+        """L1 distance of the joints (a 0/1 mask over the joints; all by default) from the default pose."""
+        return torch.sum(torch.abs(self.sim.dof_pos - self.default_dof_pos) * joints, dim=1)
 
     def _feet_contact(self) -> torch.Tensor:
         """(N, feet) bool: the foot's contact force exceeds 1 N."""
