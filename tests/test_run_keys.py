@@ -86,7 +86,10 @@ def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signu
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=100000",
            "train.runner.save_interval=100000", *CPU_ARGS, f"runs_dir={runs}"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    # As from a terminal: a shell starting pytest in the background (no job control) leaves SIGINT ignored, and
+    # a child inherits that, so Ctrl-C would never reach train.py at all.
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = []
     try:
         for line in proc.stdout:
