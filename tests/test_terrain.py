@@ -16,7 +16,8 @@ import torch
 
 import isaacgymenvs_mw
 from isaacgymenvs_mw.learning.vecenv import EpisodeStats
-from isaacgymenvs_mw.sim.terrain import TERRAIN_TYPES, column_types, generate_terrain, parse_terrain_config
+from isaacgymenvs_mw.sim.terrain import (TERRAIN_TYPES, column_types, generate_terrain, ground_geoms,
+                                         parse_terrain_config)
 
 T = "task.env.terrain."
 EQUAL_MIX = {t: 1 / 6 for t in TERRAIN_TYPES}  # with 6 columns: column j is TERRAIN_TYPES[j]
@@ -152,7 +153,7 @@ def ray_heights(model: mujoco.MjModel, xy: np.ndarray) -> np.ndarray:
     out = []
     for x, y in xy:
         dist = mujoco.mj_ray(model, data, np.array([x, y, top]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
-        assert geom[0] == mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "ground")
+        assert geom[0] in ground_geoms(model)
         out.append(top - dist)
     return np.array(out)
 
@@ -199,6 +200,67 @@ def test_observation_and_state_sizes_follow_the_scan(task):
     np.testing.assert_allclose(obs["states"][:, 55:].numpy(), expected.numpy(), atol=1e-5)
     with pytest.raises(ValueError, match="numObservations"):
         make(overrides=[T + "measureHeights=False"])  # 235 declared, 48 measured
+
+
+def test_full_size_map_gives_no_false_deep_contacts_far_from_its_centre():
+    """MuJoCo Warp 4.0's heightfield collision loses precision with the distance from the heightfield's centre:
+    on legged_gym's 130 m x 210 m map as one heightfield, 5-10 % of small spheres resting more than 20 m from its
+    centre got a contact metres deep and flew off. The builder makes one heightfield per cell (and boxes for the
+    border), so spheres pressed into the full-size map anywhere move as MuJoCo C moves them."""
+    from isaacgymenvs_mw.sim import Simulator
+    from isaacgymenvs_mw.sim.builder import _terrain_parts
+
+    cfg = parse_terrain_config({"type": "heightfield"})  # the shipped size: 10 x 20 cells of 8 m, 25 m border
+    terrain = generate_terrain(cfg)
+    spec = mujoco.MjSpec()
+    spec.option.timestep = 0.005
+    for name, shape in _terrain_parts(spec, terrain):
+        spec.worldbody.add_geom(name=name, **shape)
+    ball = spec.worldbody.add_body(name="ball")
+    ball.add_freejoint()
+    ball.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.03, 0, 0], mass=0.2)
+    model = spec.compile()
+    # Each sphere 0-40 mm into a flat place (a foot landing fast at 200 Hz was 47 mm deep): a platform (every cell,
+    # at its centre +- 1 m) or the border.
+    rng = np.random.default_rng(0)
+    n = 300
+    cells = rng.integers(0, (cfg.numLevels, cfg.numTerrains), size=(n, 2))
+    xyz = terrain.origins[cells[:, 0], cells[:, 1]] + np.c_[rng.uniform(-1.0, 1.0, (n, 2)), np.zeros(n)]
+    border = rng.random(n) < 0.2
+    xyz[border] = np.c_[rng.uniform(-24.0, -1.0, border.sum()), rng.uniform(-24.0, 184.0, border.sum()),
+                        np.zeros(border.sum())]
+    xyz[:, 2] += 0.03 - rng.uniform(0.0, 0.04, n)
+    sim = Simulator(model, n, "cpu", nconmax=8, njmax=48)
+    sim.write_state(torch.ones(n, dtype=torch.bool), root_pos=torch.tensor(xyz, dtype=torch.float))
+    speed = torch.zeros(n)
+    for _ in range(5):
+        sim.simulate()
+        speed = torch.maximum(speed, sim.qvel.abs().max(dim=1).values)
+    # MuJoCo C from the same states: the fastest any velocity component gets in the same 5 steps.
+    reference = np.zeros(n)
+    data = mujoco.MjData(model)
+    for w in range(n):
+        mujoco.mj_resetData(model, data)
+        data.qpos[:3] = xyz[w]
+        for _ in range(5):
+            mujoco.mj_step(model, data)
+            reference[w] = max(reference[w], float(np.abs(data.qvel).max()))
+    # With one heightfield for the map, a sphere spun off at 1303 rad/s (MuJoCo C's fastest: 43); the two engines'
+    # contacts differ in detail, so the bound is on the fastest of all.
+    assert torch.isfinite(speed).all()
+    assert float(speed.max()) <= 1.5 * reference.max(), (float(speed.max()), reference.max())
+
+
+def test_the_ground_parts_share_one_friction_draw_per_env():
+    """The terrain is many geoms (a heightfield per cell, border boxes) but one surface: randomising the ground's
+    friction (cfg/legged/base.yaml selects geoms "ground") gives each env one value on all of them."""
+    task = make(overrides=["task.task.randomization_params.actor_params.rigid_shape_properties.friction.range="
+                           "[0.5,1.25]"])
+    parts = ground_geoms(task.sim.mj_model)
+    assert len(parts) == 2 * 5 + 4  # TINY: 2 levels x 5 types, 4 border boxes
+    friction = task.sim.model_field("geom_friction")[:, parts, 0]
+    assert torch.equal(friction, friction[:, :1].expand_as(friction))
+    assert float(friction.min()) >= 0.5 and float(friction.max()) <= 1.25 and len(set(friction[:, 0].tolist())) > 1
 
 
 # ------------------------------------------------------------------------------------------------------ spawning

@@ -48,6 +48,7 @@ from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
     Terrain,
     TerrainConfig,
     generate_terrain,
+    ground_geoms,
     heightfield_grid,
     parse_terrain_config,
 )
@@ -74,6 +75,7 @@ __all__ = [
     "Terrain",
     "TerrainConfig",
     "generate_terrain",
+    "ground_geoms",
     "heightfield_grid",
     "parse_terrain_config",
 ]

@@ -209,19 +209,21 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
 
     collide_bits = _set_collision_filter(spec, request.self_collisions, request.keep_asset_contacts)
     if request.ground is not None:
-        shape = _terrain_geom(spec, request.terrain) if request.terrain is not None else dict(
-            type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05])  # zero half-sizes: an infinite plane
-        spec.worldbody.add_geom(
-            name="ground",
-            **shape,
-            friction=[request.ground.friction, 0.005, 0.0001],
-            contype=collide_bits[0],
-            conaffinity=collide_bits[1],
-            # Framework filter: the ground's friction and condim decide the contact. Asset contacts kept: equal
-            # priority, so MuJoCo's mixing (the larger friction, the larger condim) lets the asset's settings count.
-            condim=1 if request.keep_asset_contacts else 3,
-            priority=0 if request.keep_asset_contacts else 1,
-        )
+        parts = _terrain_parts(spec, request.terrain) if request.terrain is not None else [("ground", dict(
+            type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05]))]  # zero half-sizes: an infinite plane
+        for name, shape in parts:
+            spec.worldbody.add_geom(
+                name=name,
+                **shape,
+                friction=[request.ground.friction, 0.005, 0.0001],
+                contype=collide_bits[0],
+                conaffinity=collide_bits[1],
+                # Framework filter: the ground's friction and condim decide the contact. Asset contacts kept:
+                # equal priority, so MuJoCo's mixing (the larger friction, the larger condim) lets the asset's
+                # settings count.
+                condim=1 if request.keep_asset_contacts else 3,
+                priority=0 if request.keep_asset_contacts else 1,
+            )
 
     for name, value in request.armature.items():
         spec.joint(name).armature = float(value)
@@ -263,18 +265,49 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     return spec.compile()
 
 
-def _terrain_geom(spec: mujoco.MjSpec, terrain: Terrain) -> dict:
-    """Add the height map as an hfield asset; returns the ground geom's shape arguments. MuJoCo stores heights
-    normalised to [0, 1] times the elevation range, above the geom's z; rows run along y, columns along x."""
-    h = terrain.heights
-    low, span = float(h.min()), float(np.ptp(h))
-    span = max(span, 1e-3)  # a flat map still needs a positive elevation range
-    nx, ny = h.shape
-    rx, ry = 0.5 * (nx - 1) * terrain.spacing, 0.5 * (ny - 1) * terrain.spacing
-    field = spec.add_hfield(name="terrain", nrow=ny, ncol=nx, size=[rx, ry, span, 1.0])  # 1 m thick base
-    field.userdata = ((h - low) / span).T.astype(np.float32).ravel().tolist()
-    return dict(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname="terrain",
-                pos=[terrain.x0 + rx, terrain.y0 + ry, low])
+def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dict]]:
+    """The ground of a generated height map as (geom name, shape arguments): one heightfield per cell, each holding
+    its cell's samples plus the first row and column after it (and on the grid's low edges the border's last sample
+    before it), so the surface between samples is the one a single heightfield would have; and four flat boxes with
+    their tops at z = 0 for the border.
+
+    One heightfield per cell, not one for the map: MuJoCo Warp 4.0's heightfield collision loses precision with
+    the distance from the heightfield's centre. On a 130 m x 210 m map, 5-10 % of foot spheres more than 20 m from
+    it got a contact metres deep at a wrong place, which blew the world up (docs/PERFORMANCE.md, "Rough terrain").
+    Within a cell, no point is more than ~6 m from its heightfield's centre. MuJoCo stores heights normalised to
+    [0, 1] times the elevation range, above the geom's z; rows run along y, columns along x.
+    """
+    cfg, h, hs = terrain.config, terrain.heights, terrain.spacing
+    px, py, b, _ = cfg.sample_counts()
+    edge = 1 if b > 0 else 0  # cells on the grid's low edges also take the border's last sample before them
+    parts = []
+    for i in range(cfg.numLevels):
+        for j in range(cfg.numTerrains):
+            a0, b0 = b + i * px - (edge if i == 0 else 0), b + j * py - (edge if j == 0 else 0)
+            tile = h[a0:b + (i + 1) * px + 1, b0:b + (j + 1) * py + 1]
+            low, span = float(tile.min()), max(float(np.ptp(tile)), 1e-3)  # flat tiles need a positive range
+            nx, ny = tile.shape
+            rx, ry = 0.5 * (nx - 1) * hs, 0.5 * (ny - 1) * hs
+            name = f"ground/cell_{i}_{j}"
+            field = spec.add_hfield(name=name, nrow=ny, ncol=nx, size=[rx, ry, span, 1.0])  # 1 m thick base
+            field.userdata = ((tile - low) / span).T.astype(np.float32).ravel().tolist()
+            parts.append((name, dict(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=name,
+                                     pos=[terrain.x0 + a0 * hs + rx, terrain.y0 + b0 * hs + ry, low])))
+    if b > 0:
+        # Border strips, flat at 0 where the heightfields end: x below and above the grid over the full width,
+        # then y below and above along the grid.
+        x_lo, y_lo = terrain.x0, terrain.y0
+        x_hi, y_hi = terrain.x0 + (h.shape[0] - 1) * hs, terrain.y0 + (h.shape[1] - 1) * hs
+        gx, gy = cfg.numLevels * px * hs, cfg.numTerrains * py * hs  # the grid spans [0, gx] x [0, gy]
+        for k, (x0, x1, y0, y1) in enumerate([(x_lo, -hs, y_lo, y_hi), (gx, x_hi, y_lo, y_hi),
+                                              (-hs, gx, y_lo, -hs), (-hs, gx, gy, y_hi)]):
+            if x1 - x0 > 1e-9 and y1 - y0 > 1e-9:
+                # 0.1 mm wider on every side: no seam for a ray or a contact where a box meets a heightfield or
+                # where the map ends (both are at height 0 there).
+                parts.append((f"ground/border_{k}", dict(
+                    type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.5 * (x1 - x0) + 1e-4, 0.5 * (y1 - y0) + 1e-4, 0.5],
+                    pos=[0.5 * (x0 + x1), 0.5 * (y0 + y1), -0.5])))
+    return parts
 
 
 def _check_joint(spec: mujoco.MjSpec, name: str, key: str) -> None:

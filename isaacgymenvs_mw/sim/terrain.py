@@ -217,21 +217,52 @@ def _on_platform(cfg: TerrainConfig, x: np.ndarray, y: np.ndarray) -> np.ndarray
            (np.abs(y - 0.5 * cfg.mapWidth) <= 0.5 * cfg.platformSize)
 
 
-def heightfield_grid(model, geom_name: str = "ground") -> dict:
-    """The compiled heightfield as world heights: {'heights': (nx, ny) array, 'x0', 'y0', 'spacing'} with
-    heights[a, b] at (x0 + a * spacing, y0 + b * spacing); read back from ``model`` so a lookup sees exactly the
-    surface MuJoCo collides with (between samples MuJoCo's surface is two triangles per square, split along the
-    (a, b)-(a+1, b+1) diagonal)."""
+def ground_geoms(model) -> list[int]:
+    """Ids of the geoms that make up the ground: the plane "ground", or a terrain's "ground/..." parts (one
+    heightfield per cell and the border boxes, see sim/builder.py)."""
     import mujoco
 
-    g = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, geom_name)
-    if g < 0 or int(model.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_HFIELD):
-        raise ValueError(f"the model has no heightfield geom '{geom_name}' (env.terrain.type is not heightfield?)")
-    h = int(model.geom_dataid[g])
-    nrow, ncol = int(model.hfield_nrow[h]), int(model.hfield_ncol[h])
-    adr = int(model.hfield_adr[h])
-    rx, ry, rz, _ = model.hfield_size[h]
-    data = model.hfield_data[adr:adr + nrow * ncol].reshape(nrow, ncol).astype(np.float64)
-    pos = model.geom_pos[g]
-    return {"heights": (pos[2] + rz * data).T, "x0": float(pos[0] - rx), "y0": float(pos[1] - ry),
-            "spacing": float(2.0 * rx / (ncol - 1))}
+    names = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom))
+    return [g for g, name in enumerate(names) if name == "ground" or name.startswith("ground/")]
+
+
+def heightfield_grid(model) -> dict:
+    """The compiled terrain as world heights: {'heights': (nx, ny) array, 'x0', 'y0', 'spacing'} with
+    heights[a, b] at (x0 + a * spacing, y0 + b * spacing); read back from ``model``'s ground heightfields (and the
+    tops of its border boxes) so a lookup sees exactly the surface MuJoCo collides with (between samples MuJoCo's
+    surface is two triangles per square, split along the (a, b)-(a+1, b+1) diagonal)."""
+    import mujoco
+
+    parts = ground_geoms(model)
+    fields = [g for g in parts if int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_HFIELD)]
+    if not fields:
+        raise ValueError("the model has no ground heightfield (env.terrain.type is not heightfield?)")
+    spacing = float(2.0 * model.hfield_size[model.geom_dataid[fields[0]]][0]
+                    / (model.hfield_ncol[model.geom_dataid[fields[0]]] - 1))
+    half = {g: (model.geom_size[g][:2] if g not in fields else model.hfield_size[model.geom_dataid[g]][:2])
+            for g in parts}
+    # The grid's samples are the heightfields'; the border boxes (a hair wider than their samples) extend it by
+    # whole samples.
+    origin = np.min([model.geom_pos[g][:2] - half[g] for g in fields], axis=0)
+    lo = origin - spacing * np.round((origin - np.min([model.geom_pos[g][:2] - half[g] for g in parts], 0)) / spacing)
+    hi = np.max([model.geom_pos[g][:2] + half[g] for g in parts], axis=0)
+    shape = tuple(int(round(n)) + 1 for n in (hi - lo) / spacing)
+    heights = np.zeros(shape)
+
+    def index(x: float, axis: int) -> int:
+        return int(round((x - lo[axis]) / spacing))
+
+    for g in parts:  # border boxes first: the heightfields own the samples on the grid's edge
+        if g in fields:
+            continue
+        (cx, cy, cz), (sx, sy, sz) = model.geom_pos[g], model.geom_size[g]
+        heights[index(cx - sx, 0):index(cx + sx, 0) + 1, index(cy - sy, 1):index(cy + sy, 1) + 1] = cz + sz
+    for g in fields:
+        h = int(model.geom_dataid[g])
+        nrow, ncol, adr = int(model.hfield_nrow[h]), int(model.hfield_ncol[h]), int(model.hfield_adr[h])
+        rx, ry, rz, _ = model.hfield_size[h]
+        data = model.hfield_data[adr:adr + nrow * ncol].reshape(nrow, ncol).astype(np.float64)
+        pos = model.geom_pos[g]
+        a0, b0 = index(pos[0] - rx, 0), index(pos[1] - ry, 1)
+        heights[a0:a0 + ncol, b0:b0 + nrow] = (pos[2] + rz * data).T
+    return {"heights": heights, "x0": float(lo[0]), "y0": float(lo[1]), "spacing": spacing}

@@ -20,8 +20,8 @@ import math
 
 import torch
 
-from isaacgymenvs_mw.sim import (ModelRequest, generate_terrain, heightfield_grid, load_spec, match_joint_values,
-                                 parse_terrain_config)
+from isaacgymenvs_mw.sim import (ModelRequest, generate_terrain, ground_geoms, heightfield_grid, load_spec,
+                                 match_joint_values, parse_terrain_config)
 from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
@@ -171,7 +171,7 @@ class LeggedTask(VecTask):
         self.penalize_bodies = _select(asset.get("penalizeContactBodies", []), names,
                                        "env.asset.penalizeContactBodies")
         self.base_body = self.sim.body_id(asset.get("baseBody", names[1]))
-        self.ground_geom = self.sim.geom_id("ground")
+        self.ground_geom = ground_geoms(self.sim.mj_model)[0]  # the parts of a terrain share one friction
         sensed = list(self.sim.contact_sensors)
         self._contact_adr = self.sim.contact_columns(sensed)
         position = {b: i for i, b in enumerate(sensed)}

@@ -21,7 +21,7 @@ from typing import Any, Callable
 
 import torch
 
-from isaacgymenvs_mw.sim import InertiaConstants, Simulator, model_names, name_matches
+from isaacgymenvs_mw.sim import InertiaConstants, Simulator, ground_geoms, model_names, name_matches
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 
 DISTRIBUTIONS = ("uniform", "gaussian", "loguniform")
@@ -112,6 +112,8 @@ class Param:
     index: torch.Tensor                           # selected element ids (bodies, geoms, dofs, actuators)
     nominal: torch.Tensor                         # (1, k[, 3]) nominal values of the first target
     views: list[tuple[torch.Tensor, float]] = field(default_factory=list)  # (field view (W, ...), sign)
+    # Column of the draw each selected element takes (None: one draw each); a terrain's ground parts share one.
+    draw_of: torch.Tensor | None = None
 
 
 def _parse_spec(raw: Any, key: str, allowed: tuple[str, ...], operations: tuple[str, ...] = OPERATIONS,
@@ -293,7 +295,8 @@ class Randomizer:
         written: dict[tuple[str, int | None, int], str] = {}
         for spec, quantity, patterns, selector in self.entries:
             index = self._select(m, spec.key, quantity, patterns, selector)
-            param = Param(spec, quantity, index, nominal=torch.empty(0))
+            param = Param(spec, quantity, index, nominal=torch.empty(0),
+                          draw_of=self._shared_draws(m, quantity, index))
             for target in quantity.targets:
                 view, host = self._target_view(sim, spec.key, quantity, target)
                 for i in index.tolist():
@@ -334,6 +337,16 @@ class Randomizer:
         elif kind == "joints":
             element = [int(m.jnt_dofadr[j]) for j in element]
         return torch.tensor(sorted(set(element)), dtype=torch.long, device=self.device)
+
+    def _shared_draws(self, m, quantity: Quantity, index: torch.Tensor) -> torch.Tensor | None:
+        """The ground of a terrain is many geoms (sim/builder.py) but one surface: its parts take one draw."""
+        ground = set(ground_geoms(m))
+        ids = index.tolist()
+        if quantity.selects != "geoms" or sum(g in ground for g in ids) < 2:
+            return None
+        columns: dict[object, int] = {}
+        draw_of = [columns.setdefault("ground" if g in ground else g, len(columns)) for g in ids]
+        return torch.tensor(draw_of, dtype=torch.long, device=self.device)
 
     def _target_view(self, sim: Simulator, key: str, quantity: Quantity, target: Target):
         """(per-world view (W, n[, 3]) to write, its nominal values) of one target."""
@@ -388,10 +401,11 @@ class Randomizer:
 
     def _draw_param(self, p: Param, mask: torch.Tensor) -> None:
         q = p.quantity
-        k = p.index.numel()
+        k = p.index.numel() if p.draw_of is None else int(p.draw_of.max()) + 1
         shape = (self.num_envs, k, q.axes) if q.axes else (self.num_envs, k, 1) if q.broadcast else \
             (self.num_envs, k)
-        value = self.combine(p.spec, p.nominal, self.sample(p.spec, shape))
+        draws = self.sample(p.spec, shape)
+        value = self.combine(p.spec, p.nominal, draws if p.draw_of is None else draws[:, p.draw_of])
         if q.minimum is not None:
             value = torch.clamp(value, min=q.minimum)
         rows = mask.view((-1,) + (1,) * (value.dim() - 1))
