@@ -5,10 +5,15 @@
 #  3. test mode on 1024 envs over every level (curriculum off): tracking error and per-level survival;
 # THROUGHPUT=1 also runs the flat/terrain throughput pair at 4096 envs and the no-sync check on terrain.
 # Usage: bash benchmarks/gpu_terrain.sh TASK cold|warm OUTDIR [LIMIT_S]
+# OUTDIR/done appears when everything is written. A 600-second run does not fit one device call with its
+# evaluation: start it detached (setsid; a job merely sent to the background ends with the call) and wait in the next:
+#   call 1: THROUGHPUT=1 setsid nohup bash benchmarks/gpu_terrain.sh AnymalTerrain warm /tmp/t 600 > /tmp/t.log 2>&1 < /dev/null &
+#   call 2: while [ ! -f /tmp/t/done ]; do sleep 10; done; cat /tmp/t.log
 set -uo pipefail
 task=$1; cache=$2; out=$3; limit=${4:-580}
 here=$(dirname "$0")
-mkdir -p "$out"
+mkdir -p "$out"; rm -f "$out/done"
+trap 'touch "$out/done"' EXIT  # also when a step fails
 [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp" "/tmp/torchinductor_$(whoami)" "${HOME}/.triton/cache"
 t0=$(date +%s.%N)
 timeout -s INT "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" > "$out/$task.$cache.log" 2>&1
