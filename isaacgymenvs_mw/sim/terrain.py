@@ -237,26 +237,23 @@ def heightfield_grid(model) -> dict:
     fields = [g for g in parts if int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_HFIELD)]
     if not fields:
         raise ValueError("the model has no ground heightfield (env.terrain.type is not heightfield?)")
-    spacing = float(2.0 * model.hfield_size[model.geom_dataid[fields[0]]][0]
-                    / (model.hfield_ncol[model.geom_dataid[fields[0]]] - 1))
-    half = {g: (model.geom_size[g][:2] if g not in fields else model.hfield_size[model.geom_dataid[g]][:2])
-            for g in parts}
+    half = {g: (model.hfield_size[model.geom_dataid[g]] if g in fields else model.geom_size[g])[:2] for g in parts}
+    spacing = float(2.0 * half[fields[0]][0] / (model.hfield_ncol[model.geom_dataid[fields[0]]] - 1))
     # The grid's samples are the heightfields'; the border boxes (a hair wider than their samples) extend it by
     # whole samples.
     origin = np.min([model.geom_pos[g][:2] - half[g] for g in fields], axis=0)
-    lo = origin - spacing * np.round((origin - np.min([model.geom_pos[g][:2] - half[g] for g in parts], 0)) / spacing)
+    outer = np.min([model.geom_pos[g][:2] - half[g] for g in parts], axis=0)
+    lo = origin - spacing * np.round((origin - outer) / spacing)
     hi = np.max([model.geom_pos[g][:2] + half[g] for g in parts], axis=0)
-    shape = tuple(int(round(n)) + 1 for n in (hi - lo) / spacing)
-    heights = np.zeros(shape)
+    heights = np.zeros(tuple(int(round(n)) + 1 for n in (hi - lo) / spacing))
 
     def index(x: float, axis: int) -> int:
         return int(round((x - lo[axis]) / spacing))
 
-    for g in parts:  # border boxes first: the heightfields own the samples on the grid's edge
-        if g in fields:
-            continue
-        (cx, cy, cz), (sx, sy, sz) = model.geom_pos[g], model.geom_size[g]
-        heights[index(cx - sx, 0):index(cx + sx, 0) + 1, index(cy - sy, 1):index(cy + sy, 1) + 1] = cz + sz
+    for g in (g for g in parts if g not in fields):  # boxes first: the heightfields own the grid's edge samples
+        (cx, cy, cz), (sx, sy) = model.geom_pos[g], half[g]
+        top = cz + model.geom_size[g][2]
+        heights[index(cx - sx, 0):index(cx + sx, 0) + 1, index(cy - sy, 1):index(cy + sy, 1) + 1] = top
     for g in fields:
         h = int(model.geom_dataid[g])
         nrow, ncol, adr = int(model.hfield_nrow[h]), int(model.hfield_ncol[h]), int(model.hfield_adr[h])
