@@ -3,9 +3,9 @@
 The step runs uncaptured (captureStep off) so that each kernel shows up on its own, compiled as it ships on a GPU
 (``--compile False`` for the plain eager step). Kernels that the bare physics (``sim.simulate``) also launches count as
 physics; the others are the framework's (actions, rewards, resets, observations). Prints those sorted by GPU time
-per step, then one JSON summary.
+per step, then (``--physics_rows N``) the N costliest physics kernels per env step, then one JSON summary.
 
-  python benchmarks/profile_step.py --task Go1 --num_envs 4096 [--compile False]
+  python benchmarks/profile_step.py --task Go1 --num_envs 4096 [--compile False] [--physics_rows 20]
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ def main() -> None:
     parser.add_argument("--num_envs", type=int, default=4096)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--rows", type=int, default=25)
+    parser.add_argument("--physics_rows", type=int, default=0, help="also list the costliest physics kernels")
     parser.add_argument("--compile", choices=["True", "False"], default="True", help="sim.compileStep")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides")
     args = parser.parse_args()
@@ -44,6 +45,10 @@ def main() -> None:
     framework = {k: v for k, v in step_kernels.items() if k not in physics_kernels}
     for name, (us, count) in sorted(framework.items(), key=lambda kv: -kv[1][0])[: args.rows]:
         print(f"{us:9.1f} us/step {count:5.1f}x  {name[:110]}")
+    if args.physics_rows:
+        print(f"physics ({task.control_freq_inv} MuJoCo Warp steps per env step):")
+        for name, (us, count) in sorted(physics_kernels.items(), key=lambda kv: -kv[1][0])[: args.physics_rows]:
+            print(f"{us:9.1f} us/step {count:5.1f}x  {name[:110]}")
     print(json.dumps({
         "task": args.task, "num_envs": args.num_envs, "step_execution": task.step_execution,
         "step_gpu_us": sum(us for us, _ in step_kernels.values()),
