@@ -439,6 +439,27 @@ def test_zero_scale_term_is_not_computed_and_episode_sums_are_logged(robot, monk
         assert float(logged[name]) == pytest.approx(expected, rel=1e-5, abs=1e-9), name
 
 
+def test_a_blown_up_world_earns_nothing_and_leaves_the_episode_sums_finite():
+    """feet_slip reads the feet's velocities, which the physics derives from the state: in a world reset for NaN
+    they stay NaN until the next physics step. One NaN in the episode sums used to stay there for the whole run
+    (a G1 run on the GPU logged NaN for feet_slip from its first blow-up on)."""
+    task = make_legged("Go1", [*QUIET, "+task.env.rewards.scales.feet_slip=-0.1"])
+    reset_to_default_pose(task)
+    for _ in range(3):
+        task.step(task.zero_actions())
+    bad = 1
+    before = task.episode_sums.clone()
+    task.sim.qvel[bad, 0] = float("nan")
+    _, rew, reset, extras = task.step(task.zero_actions())
+    assert bool(extras["nonfinite_resets"][bad]) and int(reset[bad]) == 1 and float(rew[bad]) == 0.0
+    assert torch.isnan(task.sim.body_lin_vel(task._feet_body_ids)[bad]).any()  # what the term reads
+    assert torch.isfinite(task.episode_sums).all()
+    assert torch.equal(task.episode_sums[bad], before[bad])  # the blown-up step added nothing
+    task.reset_idx(all_envs())
+    assert all(torch.isfinite(v) for v in task.extras["episode_terms"].values())
+    assert not task.episode_sums.any()
+
+
 # --------------------------------------------------------------------------------- 6. randomisation
 def test_friction_and_mass_are_randomised_per_env_within_yaml_ranges(default_task, robot, urdf):
     task, facts = default_task, FACTS[robot]

@@ -383,6 +383,9 @@ class LeggedTask(VecTask):
         terms = torch.stack([fn() for fn in self.reward_fns], dim=1) * self.reward_weights
         if self._penalty_curriculum is not None:
             terms = terms * (1.0 + self._penalty_terms * (self.penalty_factor() - 1.0))
+        # A world that blew up this step earns nothing (VecTask zeroes its reward too); its terms read body states
+        # that are still NaN, and one NaN in the episode sums would stay there for the rest of the run.
+        terms = terms.masked_fill(self._nonfinite_buf.unsqueeze(1), 0.0)
         self.episode_sums += terms
         if self.only_positive_rewards:
             clamped = terms @ self._clamped_terms
@@ -449,9 +452,9 @@ class LeggedTask(VecTask):
         self.last_contacts &= rows
         self.progress_buf.masked_fill_(mask, 0)
         # Report the finished episodes' per-term sums (summed over envs; the learner divides by the count).
-        finished = (self.episode_sums * mask.unsqueeze(1)).sum(dim=0)
+        finished = torch.where(rows, 0.0, self.episode_sums).sum(dim=0)
         self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
-        self.episode_sums *= rows
+        self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
         # The base velocities and gravity the observation reads, for the new states (VecTask.reset observes next).
         self._refresh_state()
 

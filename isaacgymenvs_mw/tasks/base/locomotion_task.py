@@ -245,8 +245,9 @@ class LocomotionTask(VecTask):
         terms = torch.stack([fn() for fn in self.reward_fns], dim=1)
         fallen = self.sim.root_pos[:, 2] < self.k["terminationHeight"]
         total = torch.where(fallen, torch.full_like(self.rew_buf, self.k["deathCost"]), terms.sum(dim=1))
-        # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it.
-        self.episode_sums += terms * (~fallen).unsqueeze(1)
+        # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it. A world
+        # that blew up earns nothing (its body states are NaN until the next physics step; VecTask zeroes its reward).
+        self.episode_sums += terms.masked_fill((fallen | self._nonfinite_buf).unsqueeze(1), 0.0)
         self.rew_buf[:] = total * self.k["rewardScale"]
         timeout = self.progress_buf >= self.max_episode_length - 1
         self.reset_buf[:] = (fallen | timeout).long()
@@ -265,7 +266,7 @@ class LocomotionTask(VecTask):
         self.actions.masked_fill_(mask.unsqueeze(1), 0.0)
         self.progress_buf.masked_fill_(mask, 0)
         # The finished episodes' per-term sums (summed over envs; the learner divides by the episode count).
-        finished = (self.episode_sums * mask.unsqueeze(1)).sum(dim=0)
+        finished = torch.where(mask.unsqueeze(1), self.episode_sums, 0.0).sum(dim=0)
         self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
         self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
         # The torso state the observation reads, for the new states: VecTask.reset observes right after this, and

@@ -474,6 +474,9 @@ class VecTask:
         # its episode restarts and the step is reported as a termination, so training goes on.
         blown_up = self.sim.reset_nonfinite()
         self.progress_buf.masked_fill_(blown_up, 0)
+        # Tasks read it while computing rewards: quantities the physics derives from the state (body positions and
+        # velocities) are still non-finite in those worlds until the next physics step.
+        self._nonfinite_buf.copy_(blown_up)
 
         # post_physics_step adds one to progress_buf and may reset envs (which zeroes it); the step count at
         # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
@@ -484,7 +487,6 @@ class VecTask:
         self.progress_buf.masked_fill_(blown_up, 0)
         self.reset_buf |= blown_up
         self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
-        self._nonfinite_buf.copy_(blown_up)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
         torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs, out=self._obs_out)
