@@ -123,3 +123,30 @@ def test_the_base_is_not_a_task():
         compose_config(["task=base"])
     msg = str(info.value)
     assert "task/base" in msg and "Anymal" in msg and "Go1" in msg
+
+
+TERRAIN = OmegaConf.load(REPO_ROOT / "cfg" / "legged" / "terrain.yaml")
+
+
+@pytest.mark.parametrize("task_name, robot", [("AnymalTerrain", "Anymal"), ("Go1Terrain", "Go1"),
+                                              ("G1Terrain", "G1")])
+def test_terrain_task_is_its_robot_then_the_shared_terrain_then_its_own_keys(task_name, robot):
+    composed = leaves(compose_config([f"task={task_name}"]).task)
+    flat = leaves(compose_config([f"task={robot}"]).task)
+    terrain, own = leaves(TERRAIN), leaves(raw_task(task_name))
+    for path, value in own.items():
+        assert composed[path] == value, f"{task_name}: {'.'.join(path)}"
+    for path, value in terrain.items():
+        if path not in own:
+            assert composed[path] == value, f"{task_name}: {'.'.join(path)} is not the shared terrain's"
+    for path, value in flat.items():
+        if path not in own and path not in terrain and path != ("name",):
+            assert composed[path] == value, f"{task_name}: {'.'.join(path)} is not {robot}'s"
+    assert set(composed) == set(flat) | set(terrain) | set(own)
+    assert composed[("env", "terrain", "type")] == "heightfield"
+
+
+def test_the_terrain_setup_is_not_a_task():
+    with pytest.raises(Exception) as info:
+        compose_config(["task=terrain"])
+    assert "task/terrain" in str(info.value) and "AnymalTerrain" in str(info.value)
