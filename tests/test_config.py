@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -177,3 +178,23 @@ def test_out_of_range_task_values_are_rejected(override, key):
     with pytest.raises(ValueError, match=key):
         task = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=[override])
         task.reset()
+
+
+@pytest.mark.parametrize("key", ["physx", "substep", "ccd_iteration"])  # IsaacGymEnvs' PhysX section; typos
+def test_unknown_sim_keys_are_refused_naming_them(key):
+    with pytest.raises(ValueError, match=rf"sim: unknown key\(s\) \['{key}'\].*valid keys: .*'ccd_iterations'"):
+        isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=[f"+task.sim.{key}=1"])
+
+
+def test_ccd_options_reach_the_compiled_model_and_bad_values_are_refused():
+    stock = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu").sim.mj_model.opt
+    task = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu",
+                                overrides=["+task.sim.ccd_iterations=16", "+task.sim.ccd_tolerance=1e-5"])
+    assert (task.sim.mj_model.opt.ccd_iterations, task.sim.mj_model.opt.ccd_tolerance) == (16, 1e-5)
+    assert task.sim.model.opt.ccd_iterations == 16  # what MuJoCo Warp's collision kernels are built with
+    assert (stock.ccd_iterations, stock.ccd_tolerance) == (mujoco.MjOption().ccd_iterations,
+                                                          mujoco.MjOption().ccd_tolerance)  # absent: MuJoCo's own
+    for override, key in (("+task.sim.ccd_iterations=0", "sim.ccd_iterations"),
+                          ("+task.sim.ccd_tolerance=0", "sim.ccd_tolerance")):
+        with pytest.raises(ValueError, match=key):
+            isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=[override])

@@ -65,6 +65,8 @@ class SolverOptions:
     cone: str = "pyramidal"
     iterations: int = 10
     ls_iterations: int = 20
+    ccd_iterations: int | None = None  # None: MuJoCo's default (35); GJK and EPA iterations of convex collisions
+    ccd_tolerance: float | None = None  # None: MuJoCo's default (1e-6)
     impratio: float = 1.0
     enable_contacts: bool = True
 
@@ -439,6 +441,14 @@ def _apply_options(spec: mujoco.MjSpec, o: SolverOptions) -> None:
     spec.option.cone = _CONES[o.cone]
     spec.option.iterations = int(o.iterations)
     spec.option.ls_iterations = int(o.ls_iterations)
+    if o.ccd_iterations is not None:
+        if o.ccd_iterations < 1:
+            raise ValueError(f"sim.ccd_iterations must be >= 1, got {o.ccd_iterations}")
+        spec.option.ccd_iterations = int(o.ccd_iterations)
+    if o.ccd_tolerance is not None:
+        if o.ccd_tolerance <= 0:
+            raise ValueError(f"sim.ccd_tolerance must be > 0, got {o.ccd_tolerance}")
+        spec.option.ccd_tolerance = float(o.ccd_tolerance)
     spec.option.impratio = float(o.impratio)
     if not o.enable_contacts:
         spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT

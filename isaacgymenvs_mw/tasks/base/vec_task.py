@@ -106,6 +106,7 @@ class VecTask:
         self.control_steps = 0
         self.total_train_env_frames = 0
         sim_cfg = config.get("sim", {})
+        _check_sim_keys(sim_cfg)
         self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
@@ -664,6 +665,20 @@ def joint_drives(control: dict, joints: list[str], owned: dict[str, str],
     }
 
 
+# Every key the task YAML's `sim` section may hold (docs/config.md, "sim"); any other is a typo or a key of another
+# simulator, and is refused rather than ignored.
+SIM_KEYS = ("dt", "gravity", "integrator", "solver", "cone", "iterations", "ls_iterations", "ccd_iterations",
+            "ccd_tolerance", "impratio", "enableContacts", "nconmax", "njmax", "overflowCheckInterval", "useGraphs",
+            "captureStep", "compileStep", "deterministic")
+
+
+def _check_sim_keys(sim: dict) -> None:
+    unknown = sorted(str(k) for k in sim if k not in SIM_KEYS)
+    if unknown:
+        raise ValueError(f"sim: unknown key(s) {unknown} (IsaacGymEnvs' PhysX keys such as physx, substeps and "
+                         f"use_gpu_pipeline have no counterpart here); valid keys: {list(SIM_KEYS)}")
+
+
 def solver_options(sim: dict) -> SolverOptions:
     """The task YAML ``sim`` section as solver options (IsaacGymEnvs' ``dt`` and ``gravity`` keep their names)."""
     defaults = SolverOptions()
@@ -675,6 +690,8 @@ def solver_options(sim: dict) -> SolverOptions:
         cone=str(sim.get("cone", defaults.cone)),
         iterations=int(sim.get("iterations", defaults.iterations)),
         ls_iterations=int(sim.get("ls_iterations", defaults.ls_iterations)),
+        ccd_iterations=None if sim.get("ccd_iterations") is None else int(sim["ccd_iterations"]),
+        ccd_tolerance=None if sim.get("ccd_tolerance") is None else float(sim["ccd_tolerance"]),
         impratio=float(sim.get("impratio", defaults.impratio)),
         enable_contacts=bool(sim.get("enableContacts", defaults.enable_contacts)),
     )
