@@ -80,16 +80,18 @@ def test_runs_dir_under_a_file_is_named_and_a_good_one_is_left_untouched(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
 
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signum):
+@pytest.mark.parametrize("signum, sigint_at_start", [(signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.SIG_DFL),
+                                                     (signal.SIGINT, signal.SIG_IGN)],
+                         ids=["SIGTERM", "SIGINT", "SIGINT-ignored-at-start"])
+def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signum, sigint_at_start):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=100000",
            "train.runner.save_interval=100000", *CPU_ARGS, f"runs_dir={runs}"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
-    # As from a terminal: a shell starting pytest in the background (no job control) leaves SIGINT ignored, and
-    # a child inherits that, so Ctrl-C would never reach train.py at all.
+    # SIG_DFL: as from a terminal. SIG_IGN: as a background job of a non-interactive shell starts it (a script's
+    # `python train.py ... &`); the run must still stop cleanly on `kill -INT`.
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, sigint_at_start))
     lines = []
     try:
         for line in proc.stdout:

@@ -177,7 +177,9 @@ def _signal_number(err: KeyboardInterrupt) -> int:
 @contextmanager
 def _terminate_as_interrupt():
     """While training, SIGTERM raises ``Terminated`` (once: a second one while the checkpoint is written is
-    ignored, so that the file is whole). Only the main thread can handle signals; elsewhere nothing changes."""
+    ignored, so that the file is whole), and SIGINT raises KeyboardInterrupt even where the process started with
+    SIGINT ignored (a background job of a non-interactive shell) or a library reset it: either way the run stops
+    with its checkpoint and summary. Only the main thread can handle signals; elsewhere nothing changes."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
@@ -191,10 +193,12 @@ def _terminate_as_interrupt():
             raise Terminated()
 
     previous = signal.signal(signal.SIGTERM, handler)
+    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGINT, previous_int)
 
 
 def _leave_process_group(runner: Runner) -> None:
