@@ -157,6 +157,26 @@ def test_legged_camera_follows_the_root(tmp_path):
     task.close()
 
 
+def test_terrain_camera_frames_the_robot_not_the_ground(tmp_path):
+    """The terrain is 200 heightfields and four border boxes on the world body; the camera's distance must come from
+    the robot alone, as on flat ground, and the border must not take the robot's colour."""
+    flat, rough = make("Anymal"), make("AnymalTerrain")
+    cams = []
+    for task, folder in ((flat, "flat"), (rough, "rough")):
+        task.reset()
+        rec = VideoRecorder(task.sim, tmp_path / folder, fps=50, width=160, height=120)
+        cams.append(rec.camera.distance)
+        rec.close()
+    assert cams[1] == pytest.approx(cams[0], rel=1e-6)
+    border = rough.sim.geom_id("ground/border_0")
+    rec = VideoRecorder(rough.sim, tmp_path / "colours", fps=50, width=160, height=120)
+    assert np.allclose(rec.model.geom_rgba[border], rec.model.geom_rgba[rough.sim.geom_id("ground/cell_0_0")])
+    assert drawn(rec.render())
+    rec.close()
+    flat.close()
+    rough.close()
+
+
 def test_train_and_test_mode_capture_video(tmp_path):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "capture_video=True",

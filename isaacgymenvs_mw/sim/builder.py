@@ -20,7 +20,7 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
-from isaacgymenvs_mw.sim.terrain import Terrain
+from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
 
 DRIVE_MODES = ("none", "effort", "position")
 
@@ -290,7 +290,7 @@ def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dic
             low, span = float(tile.min()), max(float(np.ptp(tile)), 1e-3)  # flat tiles need a positive range
             nx, ny = tile.shape
             rx, ry = 0.5 * (nx - 1) * hs, 0.5 * (ny - 1) * hs
-            name = f"ground/cell_{i}_{j}"
+            name = f"{GROUND_PART_PREFIX}cell_{i}_{j}"
             field = spec.add_hfield(name=name, nrow=ny, ncol=nx, size=[rx, ry, span, 1.0])  # 1 m thick base
             field.userdata = ((tile - low) / span).T.astype(np.float32).ravel().tolist()
             parts.append((name, dict(type=mujoco.mjtGeom.mjGEOM_HFIELD, hfieldname=name,
@@ -306,7 +306,7 @@ def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dic
             if x1 - x0 > 1e-9 and y1 - y0 > 1e-9:
                 # 0.1 mm wider on every side: no seam for a ray or a contact where a box meets a heightfield or
                 # where the map ends (both are at height 0 there).
-                parts.append((f"ground/border_{k}", dict(
+                parts.append((f"{GROUND_PART_PREFIX}border_{k}", dict(
                     type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.5 * (x1 - x0) + 1e-4, 0.5 * (y1 - y0) + 1e-4, 0.5],
                     pos=[0.5 * (x0 + x1), 0.5 * (y0 + y1), -0.5])))
     return parts

@@ -217,13 +217,16 @@ def _on_platform(cfg: TerrainConfig, x: np.ndarray, y: np.ndarray) -> np.ndarray
            (np.abs(y - 0.5 * cfg.mapWidth) <= 0.5 * cfg.platformSize)
 
 
+GROUND_PART_PREFIX = "ground/"  # the builder's names for the terrain's parts: ground/cell_<i>_<j>, ground/border_<k>
+
+
 def ground_geoms(model) -> list[int]:
     """Ids of the geoms that make up the ground: the plane "ground", or a terrain's "ground/..." parts (one
     heightfield per cell and the border boxes, see sim/builder.py)."""
     import mujoco
 
     names = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom))
-    return [g for g, name in enumerate(names) if name == "ground" or name.startswith("ground/")]
+    return [g for g, name in enumerate(names) if name == "ground" or name.startswith(GROUND_PART_PREFIX)]
 
 
 def heightfield_grid(model) -> dict:

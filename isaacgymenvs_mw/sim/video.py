@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 
 from isaacgymenvs_mw.sim.simulator import Simulator
+from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX
 
 _BODY_RGBA = np.array([0.85, 0.55, 0.25, 1.0])
 _GROUND_RGBA = np.array([0.22, 0.27, 0.32, 1.0])
@@ -195,7 +196,7 @@ class VideoRecorder:
         return self.sim.body_id(track_body)
 
     def _model_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """World-frame bounding box (lo, hi) of every geom but the ground (planes, a terrain heightfield), at the
+        """World-frame bounding box (lo, hi) of every geom but the ground (planes, the terrain's parts), at the
         model's initial pose: the camera frames the robot, not a 100 m terrain."""
         m, d = self.model, self.data
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
@@ -314,4 +315,8 @@ class VideoRecorder:
 
 
 def _is_ground(m: mujoco.MjModel, g: int) -> bool:
-    return int(m.geom_type[g]) in (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD))
+    """A plane or heightfield, or one of the ground's parts the framework names "ground/..." (the terrain's border
+    boxes among them). Not every world-body geom: a fixed base fused into the world (Cartpole's rail) is the robot's."""
+    if int(m.geom_type[g]) in (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD)):
+        return True
+    return (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(GROUND_PART_PREFIX)
