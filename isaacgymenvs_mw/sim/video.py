@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 
 from isaacgymenvs_mw.sim.simulator import Simulator
-from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX
+from isaacgymenvs_mw.sim.terrain import ground_geoms
 
 _BODY_RGBA = np.array([0.85, 0.55, 0.25, 1.0])
 _GROUND_RGBA = np.array([0.22, 0.27, 0.32, 1.0])
@@ -154,10 +154,11 @@ class VideoRecorder:
         m.vis.headlight.diffuse[:] = 0.65
         m.vis.headlight.specular[:] = 0.15
         default_grey = np.array([0.5, 0.5, 0.5, 1.0])
+        ground = _ground_ids(m)
         for g in range(m.ngeom):
             if not np.allclose(m.geom_rgba[g], default_grey) or int(m.geom_matid[g]) >= 0:
                 continue  # the asset chose a colour or material: keep it
-            m.geom_rgba[g] = _GROUND_RGBA if _is_ground(m, g) else _BODY_RGBA
+            m.geom_rgba[g] = _GROUND_RGBA if g in ground else _BODY_RGBA
 
     def _add_floor_grid(self) -> None:
         """Draw grid lines on each horizontal plane around the camera's target: without them a tracked robot
@@ -201,8 +202,9 @@ class VideoRecorder:
         m, d = self.model, self.data
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
         corners = []
+        ground = _ground_ids(m)
         for g in range(m.ngeom):
-            if _is_ground(m, g):
+            if g in ground:
                 continue
             center, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
             local = center + signs * half
@@ -314,9 +316,9 @@ class VideoRecorder:
         self._release()  # runs renderer.close() once
 
 
-def _is_ground(m: mujoco.MjModel, g: int) -> bool:
-    """A plane or heightfield, or one of the ground's parts the framework names "ground/..." (the terrain's border
-    boxes among them). Not every world-body geom: a fixed base fused into the world (Cartpole's rail) is the robot's."""
-    if int(m.geom_type[g]) in (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD)):
-        return True
-    return (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(GROUND_PART_PREFIX)
+def _ground_ids(m: mujoco.MjModel) -> set[int]:
+    """The framework's ground (sim.terrain.ground_geoms: the plane, or a terrain's heightfields and border boxes) and
+    any other plane or heightfield an asset brings. Not every world-body geom: a fixed base fused into the world
+    (Cartpole's rail) is the robot's."""
+    flat = (int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_HFIELD))
+    return set(ground_geoms(m)) | {g for g in range(m.ngeom) if int(m.geom_type[g]) in flat}

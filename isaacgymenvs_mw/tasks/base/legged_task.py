@@ -452,7 +452,7 @@ class LeggedTask(VecTask):
         self.last_contacts &= rows
         self.progress_buf.masked_fill_(mask, 0)
         # Report the finished episodes' per-term sums (summed over envs; the learner divides by the count).
-        finished = torch.where(rows, 0.0, self.episode_sums).sum(dim=0)
+        finished = torch.where(mask.unsqueeze(1), self.episode_sums, 0.0).sum(dim=0)
         self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
         self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
         # The base velocities and gravity the observation reads, for the new states (VecTask.reset observes next).
