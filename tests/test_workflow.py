@@ -235,7 +235,9 @@ def twin_cartpoles(make_cartpole, n: int = 8):
     return tasks
 
 
-@pytest.mark.parametrize("field,value", [("qvel", float("nan")), ("qpos", float("inf")), ("qvel", float("-inf"))])
+# 1e6: finite, but past the simulator's divergence bound (1e4), as a world one step from NaN is.
+@pytest.mark.parametrize("field,value", [("qvel", float("nan")), ("qpos", float("inf")), ("qvel", float("-inf")),
+                                         ("qvel", 1.0e6)])
 def test_nonfinite_world_is_reset_and_others_unaffected(make_cartpole, field, value):
     n, bad = 8, 3
     faulty, twin = twin_cartpoles(make_cartpole, n)

@@ -171,8 +171,8 @@ class Runner(OnPolicyRunner):
         if writer is not None:
             writer.add_scalar("Sim/nonfinite_resets", self.nonfinite_resets, it)
         if stats["nonfinite_resets"]:
-            print(f"[it {it + 1:>5}] {int(stats['nonfinite_resets'])} env(s) had NaN/inf simulator state and were "
-                  f"reset ({self.nonfinite_resets} so far)", flush=True)
+            print(f"[it {it + 1:>5}] {int(stats['nonfinite_resets'])} env(s) had NaN/inf or diverged (a speed "
+                  f"above 1e4) simulator state and were reset ({self.nonfinite_resets} so far)", flush=True)
         if stats["episodes"]:
             episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
             if "Episode/terrain_level" in stats:

@@ -21,6 +21,11 @@ import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
 
+# A world with any joint speed above this (m/s or rad/s) has diverged and is reset as a NaN one is. Such speeds are
+# physically meaningless at millisecond steps (50 m per 5 ms step), and a world one step from NaN can hold 1e7: its
+# squared penalties (dof_acc) reached 1e9 per episode on the GPU and spiked PPO's value loss.
+DIVERGED_SPEED = 1.0e4
+
 # Overflow bits we report, and the task YAML key that fixes each.
 _OVERFLOW_KEYS = {
     int(mjw.OverflowType.NEFC): "sim.njmax",
@@ -292,8 +297,9 @@ class Simulator:
             view.copy_(state[name])
 
     def reset_nonfinite(self) -> torch.Tensor:
-        """Reset worlds whose qpos or qvel holds NaN/inf (see ``reset_worlds``); returns their mask."""
-        bad = ~(torch.isfinite(self.qpos).all(dim=1) & torch.isfinite(self.qvel).all(dim=1))
+        """Reset worlds whose qpos or qvel holds NaN/inf, or whose qvel exceeds ``DIVERGED_SPEED`` (a world on its
+        way to NaN; see ``reset_worlds``); returns their mask."""
+        bad = ~(torch.isfinite(self.qpos).all(dim=1) & (self.qvel.abs() <= DIVERGED_SPEED).all(dim=1))
         self.reset_worlds(bad)
         return bad
 
