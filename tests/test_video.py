@@ -101,9 +101,9 @@ def test_cartpole_clips_frames_and_rate(tmp_path):
     assert np.abs(frames[-1].astype(int) - frames[0].astype(int)).mean() > 0.05
 
 
-def robot_pixels(rec: VideoRecorder, ground: int) -> tuple[int, np.ndarray | None]:
+def robot_pixels(rec: VideoRecorder, ground: int | list[int]) -> tuple[int, np.ndarray | None]:
     seg = rec.render(segmentation=True)
-    mask = (seg >= 0) & (seg != ground)
+    mask = (seg >= 0) & ~np.isin(seg, ground)
     if mask.sum() == 0:
         return 0, None
     ys, xs = np.nonzero(mask)
@@ -168,6 +168,21 @@ def test_terrain_camera_frames_the_robot_not_the_ground(tmp_path):
         cams.append(rec.camera.distance)
         rec.close()
     assert cams[1] == pytest.approx(cams[0], rel=1e-6)
+
+    # The robot is drawn whole on terrain too: in the default pose, upright, it covers as many pixels as on flat
+    # ground (the terrain's size once put the near clip plane at the camera's distance and cut the robot away).
+    seen = []
+    for task in (flat, rough):
+        n, m = task.num_envs, task.sim.mj_model
+        task.sim.write_state(torch.ones(n, dtype=torch.bool), dof_pos=task.default_dof_pos.repeat(n, 1),
+                             root_pos=task.sim.root_pos.clone(), root_quat=torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+                             root_lin_vel=torch.zeros(n, 3), root_ang_vel=torch.zeros(n, 3))
+        ground = [g for g in range(m.ngeom) if (m.geom(g).name or "").startswith("ground")]
+        rec = VideoRecorder(task.sim, tmp_path / f"seen{len(seen)}", fps=50, width=160, height=120)
+        seen.append(robot_pixels(rec, ground)[0])
+        rec.close()
+    assert seen[0] > 200 and 0.8 < seen[1] / seen[0] < 1.25, seen
+
     border = rough.sim.geom_id("ground/border_0")
     rec = VideoRecorder(rough.sim, tmp_path / "colours", fps=50, width=160, height=120)
     assert np.allclose(rec.model.geom_rgba[border], rec.model.geom_rgba[rough.sim.geom_id("ground/cell_0_0")])

@@ -29,6 +29,7 @@ _BODY_RGBA = np.array([0.85, 0.55, 0.25, 1.0])
 _GROUND_RGBA = np.array([0.22, 0.27, 0.32, 1.0])
 _GRID_RGBA = np.array([0.55, 0.6, 0.65, 1.0], dtype=np.float32)
 _GRID_SPACING = 0.5  # m
+_NEAR_CLIP_M, _FAR_CLIP_M = 0.05, 1000.0  # at most; small models keep MuJoCo's own (extent-scaled) planes
 
 AUTO = "auto"  # track_body default: the floating base's body when there is one, a fixed view otherwise
 
@@ -153,6 +154,10 @@ class VideoRecorder:
         m.vis.headlight.ambient[:] = 0.35
         m.vis.headlight.diffuse[:] = 0.65
         m.vis.headlight.specular[:] = 0.15
+        # MuJoCo's clip planes scale with the model's extent; a terrain's 300 m put the near one at 3 m, where the
+        # tracking camera stands, and cut the robot away. Fixed distances instead, for any model size.
+        m.vis.map.znear = min(float(m.vis.map.znear), _NEAR_CLIP_M / float(m.stat.extent))
+        m.vis.map.zfar = min(float(m.vis.map.zfar), _FAR_CLIP_M / float(m.stat.extent))
         default_grey = np.array([0.5, 0.5, 0.5, 1.0])
         ground = _ground_ids(m)
         for g in range(m.ngeom):
