@@ -266,7 +266,8 @@ class LeggedTask(VecTask):
     def _init_penalty_curriculum(self, cfg) -> None:
         """Penalties (negative scales, termination aside) start at ``start`` x their scale and reach the full scale
         linearly over ``steps`` env steps per env (Hwangbo et al. 2019's cost curriculum for ANYmal, made linear).
-        Early random actions then cost less than tracking earns, so a clamped reward is not 0 from the start."""
+        Early random actions then cost less than tracking earns: a clamped reward is not 0 from the start, and an
+        unclamped one does not make falling early the cheapest way out."""
         self._penalty_curriculum = None
         if cfg is None:
             return
