@@ -8,11 +8,13 @@ import os
 import signal
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import pytest
 
 from conftest import CPU_ARGS, REPO_ROOT
-from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.learning.launch import _stop_on_signal, run
+from isaacgymenvs_mw.learning.runner import Runner, StopRequested
 from isaacgymenvs_mw.utils.config import check_runs_dir, compose_config
 
 
@@ -80,10 +82,12 @@ def test_runs_dir_under_a_file_is_named_and_a_good_one_is_left_untouched(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
 
 
-@pytest.mark.parametrize("signum, sigint_at_start", [(signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.SIG_DFL),
-                                                     (signal.SIGINT, signal.SIG_IGN)],
-                         ids=["SIGTERM", "SIGINT", "SIGINT-ignored-at-start"])
-def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signum, sigint_at_start):
+@pytest.mark.parametrize("signum, sigint_at_start, repeats", [(signal.SIGTERM, signal.SIG_DFL, 1),
+                                                              (signal.SIGINT, signal.SIG_DFL, 1),
+                                                              (signal.SIGINT, signal.SIG_IGN, 1),
+                                                              (signal.SIGTERM, signal.SIG_DFL, 2)],
+                         ids=["SIGTERM", "SIGINT", "SIGINT-ignored-at-start", "SIGTERM-twice"])
+def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signum, sigint_at_start, repeats):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=100000",
            "train.runner.save_interval=100000", *CPU_ARGS, f"runs_dir={runs}"]
@@ -97,7 +101,8 @@ def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signu
         for line in proc.stdout:
             lines.append(line)
             if line.startswith("[it "):
-                proc.send_signal(signum)
+                for _ in range(repeats):  # `timeout` signals the process, then its whole process group
+                    proc.send_signal(signum)
                 break
         out, _ = proc.communicate(timeout=120)
     finally:
@@ -116,3 +121,26 @@ def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signu
     checkpoints = sorted(p.name for p in run_dir.glob("model_*.pt"))
     assert checkpoints == [f"model_{last}_interrupted.pt"]  # what it learned, and no 'finished' checkpoint
     assert f"stopped by {signal.Signals(signum).name}" in text
+
+
+def test_a_signal_only_asks_the_runner_to_stop_and_a_second_sigint_insists():
+    # The handler must not raise where the signal lands (inside a compiled step, a CUDA graph, TensorBoard's queue):
+    # it records the signal, and Runner.learn raises StopRequested between env steps.
+    def deliver(signum):
+        os.kill(os.getpid(), signum)
+        for _ in range(1000):  # Python runs signal handlers between bytecodes
+            pass
+
+    runner = SimpleNamespace(stop_signal=None)
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+    with _stop_on_signal(runner):
+        deliver(signal.SIGTERM)
+        assert runner.stop_signal == signal.SIGTERM
+        deliver(signal.SIGTERM)  # `timeout` sends two: ignored
+        with pytest.raises(KeyboardInterrupt):
+            deliver(signal.SIGINT)
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+    with pytest.raises(StopRequested) as info:
+        Runner._stop_if_requested(runner)
+    assert info.value.signum == signal.SIGTERM and isinstance(info.value, KeyboardInterrupt)

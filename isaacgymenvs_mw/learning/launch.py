@@ -113,11 +113,11 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
           f"{max_iterations} iterations, run dir {run_dir}", flush=True)
     start_it = runner.current_learning_iteration
     interrupted: KeyboardInterrupt | None = None
-    with _terminate_as_interrupt():
+    with _stop_on_signal(runner):
         try:
             runner.learn(max_iterations,
                          init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
-        except KeyboardInterrupt as err:  # Ctrl-C, or SIGTERM from a scheduler: Runner.learn has saved the model
+        except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): Runner.learn has saved the model
             interrupted = err
 
     wall = time.perf_counter() - started_at
@@ -163,37 +163,34 @@ def seed_run(cfg: DictConfig, rank: int = 0) -> int:
     return set_seed(int(cfg.seed), bool(cfg.torch_deterministic) or deterministic, rank=rank)
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (cluster schedulers' preemption or time limit) raised where the run is, as Ctrl-C raises
-    KeyboardInterrupt: the same checkpoint and summary are written."""
-
-    signum = signal.SIGTERM
-
-
 def _signal_number(err: KeyboardInterrupt) -> int:
     return int(getattr(err, "signum", signal.SIGINT))
 
 
 @contextmanager
-def _terminate_as_interrupt():
-    """While training, SIGTERM raises ``Terminated`` (once: a second one while the checkpoint is written is
-    ignored, so that the file is whole), and SIGINT raises KeyboardInterrupt even where the process started with
-    SIGINT ignored (a background job of a non-interactive shell) or a library reset it: either way the run stops
-    with its checkpoint and summary. Only the main thread can handle signals; elsewhere nothing changes."""
+def _stop_on_signal(runner: Runner):
+    """While training, SIGTERM (schedulers' preemption or time limit) and SIGINT (Ctrl-C, ``kill -INT``) ask the
+    runner to stop; it stops at the next env step, saves its checkpoint and raises ``StopRequested``, so the summary
+    is written too. The handler raises nothing itself: an exception thrown into library code at an arbitrary point
+    (a compiled step, a CUDA graph, TensorBoard's queue) is how a stopped run can lose both. A second SIGINT is a
+    user insisting: it raises KeyboardInterrupt at once (the checkpoint is still attempted). Repeated SIGTERMs are
+    ignored (``timeout`` sends one to the process and one to its group). SIGINT is handled even where the process
+    started with it ignored (a background job of a non-interactive shell). Only the main thread can handle
+    signals; elsewhere nothing changes."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    fired = []
 
     def handler(signum, frame):
-        if not fired:
-            fired.append(signum)
-            raise Terminated()
+        if runner.stop_signal is None:
+            runner.stop_signal = signum
+        elif signum == signal.SIGINT:
+            raise KeyboardInterrupt()
 
     previous = signal.signal(signal.SIGTERM, handler)
-    previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous_int = signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:

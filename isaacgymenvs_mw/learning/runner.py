@@ -58,6 +58,15 @@ def device_description(device: str) -> str:
     return f"cpu ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
 
 
+class StopRequested(KeyboardInterrupt):
+    """Raised by ``Runner.learn`` between env steps once ``stop_signal`` is set (a signal handler sets it): the run
+    stops where no library code is mid-call, with the same checkpoint and summary as Ctrl-C."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
 class Runner(OnPolicyRunner):
     """OnPolicyRunner with a sync-free rollout, one progress line per iteration, and a run summary."""
 
@@ -75,6 +84,7 @@ class Runner(OnPolicyRunner):
         self.nonfinite_resets = 0
         self.run_config: dict | None = None  # the resolved run config, attached to W&B runs
         self.experiment = "run"  # W&B's default project
+        self.stop_signal: int | None = None  # set from a signal handler; learn() stops at the next env step
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
@@ -106,6 +116,7 @@ class Runner(OnPolicyRunner):
                         obs, rewards, dones, extras = env.step(actions.to(env.device))
                         obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                         self.alg.process_env_step(obs, rewards, dones, extras)
+                        self._stop_if_requested()
                     self.alg.compute_returns(obs)
                 t1 = time.perf_counter()
                 if on_cuda:
@@ -121,6 +132,7 @@ class Runner(OnPolicyRunner):
                 self._log_iteration(writer, it, last_it, t2 - t0 - learn_s, learn_s, losses)
                 if self.is_main and self.log_dir and (it + 1) % self.cfg["save_interval"] == 0:
                     self.save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
+                self._stop_if_requested()
         except BaseException:
             # An interrupted run keeps what it learned so far.
             if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
@@ -135,6 +147,10 @@ class Runner(OnPolicyRunner):
                 if isinstance(writer, LogWriter):
                     writer.stop()
                 self.logger.writer = None
+
+    def _stop_if_requested(self) -> None:
+        if self.stop_signal is not None:
+            raise StopRequested(self.stop_signal)
 
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
