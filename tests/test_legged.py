@@ -640,6 +640,51 @@ def test_penalty_curriculum_bad_input_names_the_key(value, complaint):
     assert "env.rewards.penaltyCurriculum" in str(err.value)
 
 
+HEADING = ["+task.env.commands.heading.range=[-3.0,3.0]", "+task.env.commands.heading.stiffness=0.5"]
+
+
+def test_heading_command_steers_the_yaw_rate_by_the_wrapped_heading_error():
+    # env.commands.heading {range, stiffness}: yaw-rate command = clip(stiffness * wrap(heading - yaw), yawRate).
+    task = make_legged("Go1", [*QUIET, *HEADING])
+    task.reset()
+    rot = write_known_root_state(task, "Go1")
+    yaw = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])  # the body x axis in the world's ground plane
+    targets = np.array([0.9, 2.9, -2.9, 2.9])  # the last two cross +-pi: the short way round is the other sign
+    task.heading_targets[:] = torch.tensor(targets, dtype=torch.float32)
+    task._resample_commands(torch.zeros(N, dtype=torch.bool))
+    error = np.array([0.2, 4.1 - 2 * np.pi, -5.4 + 2 * np.pi, 5.8 - 2 * np.pi])  # worked by hand from the two rows
+    np.testing.assert_allclose(yaw, YAW, atol=1e-6)
+    np.testing.assert_allclose(task.commands[:, 2].numpy(), np.clip(0.5 * error, -1.0, 1.0), atol=1e-5)
+
+    # Resampling draws new headings in range for the masked envs only.
+    mask = torch.tensor([True, False, True, False])
+    task._resample_commands(mask)
+    new = task.heading_targets.numpy()
+    np.testing.assert_allclose(new[~mask.numpy()], targets[~mask.numpy()], rtol=0, atol=1e-6)
+    assert np.all(np.abs(new[mask.numpy()]) <= 3.0) and np.all(new[mask.numpy()] != targets[mask.numpy()])
+
+    # After a real step the command follows the yaw MuJoCo C reads from the same quaternion.
+    task.step(torch.zeros(N, 12))
+    mat = np.zeros(9)
+    for i, q in enumerate(task.sim.root_quat.numpy().astype(np.float64)):
+        mujoco.mju_quat2Mat(mat, q)
+        err = task.heading_targets[i].item() - math.atan2(mat[3], mat[0])
+        err = (err + math.pi) % (2 * math.pi) - math.pi
+        assert task.commands[i, 2].item() == pytest.approx(min(1.0, max(-1.0, 0.5 * err)), abs=1e-5)
+
+
+@pytest.mark.parametrize("value, complaint", [
+    ({"range": "[-4.0,1.0]", "stiffness": 0.5}, "range must be [low, high] in radians"),
+    ({"range": "[-1.0,1.0]", "stiffness": 0}, "stiffness must be a number > 0"),
+    ({"range": "[-1.0,1.0]"}, "exactly the keys range and stiffness"),
+])
+def test_heading_command_bad_input_names_the_key(value, complaint):
+    overrides = [f"+task.env.commands.heading.{k}={v}" for k, v in value.items()]
+    with pytest.raises(ValueError, match=re.escape(complaint)) as err:
+        make_legged("Go1", [*QUIET, *overrides])
+    assert "env.commands.heading" in str(err.value)
+
+
 # -------------------------------------------------------------------------------- 9. observation layout
 def test_observation_layout_matches_rotation_math_and_mujoco_c(quiet_task, robot):
     task = quiet_task

@@ -2,7 +2,7 @@
 Go1, ...).
 
 The robot gets a command (forward and sideways velocity, yaw rate), sampled from YAML ranges and resampled on
-a timer, and must follow it. Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
+a timer, and must follow it; with ``env.commands.heading`` the yaw rate steers towards a sampled heading instead. Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
 Rewards are legged_gym's: one ``_reward_<name>`` method per term, weighted by ``rewards.scales.<name>`` times the
 policy dt; a zero scale removes the term. Everything a user would tune lives in the task YAML.
 
@@ -124,8 +124,7 @@ class LeggedTask(VecTask):
 
     def scan_heights(self) -> torch.Tensor:
         """Terrain heights (m, world z) under the scan points around each base, rotated by the base's yaw."""
-        q = self.sim.root_quat  # (w, x, y, z)
-        yaw = torch.atan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        yaw = self.base_yaw()
         c, s = torch.cos(yaw).unsqueeze(1), torch.sin(yaw).unsqueeze(1)
         px, py = self.scan_points[:, 0], self.scan_points[:, 1]
         pos = self.sim.root_pos
@@ -211,6 +210,7 @@ class LeggedTask(VecTask):
                                            dtype=torch.float)
         self.command_resample_steps = max(1, int(round(float(cmd["resamplingTime_s"]) / self.control_dt)))
         self.min_command_norm = float(cmd.get("minLinearCommand", 0.0))
+        self._init_heading_command(cmd.get("heading"))
 
         scales = env["obsScales"]
         self.obs_scales = {k: float(v) for k, v in scales.items()}
@@ -459,12 +459,48 @@ class LeggedTask(VecTask):
         # The base velocities and gravity the observation reads, for the new states (VecTask.reset observes next).
         self._refresh_state()
 
+    def _init_heading_command(self, cfg) -> None:
+        """env.commands.heading {range, stiffness}: the masked envs draw a world-frame heading (rad) instead of a
+        yaw rate, and every step the yaw-rate command is stiffness x the heading error, clipped to the yawRate
+        range (legged_gym's and Isaac Lab's heading command). The robot turns, then walks straight: a curriculum
+        that asks for half the commanded distance can then be met. Absent: yaw rates are drawn directly."""
+        self.heading_range: tuple[float, float] | None = None
+        if cfg is None:
+            return
+        key = "env.commands.heading"
+        if not hasattr(cfg, "keys") or set(cfg.keys()) != {"range", "stiffness"}:
+            raise ValueError(f"{key} must be a mapping with exactly the keys range and stiffness, got {cfg!r}")
+        rng, stiffness = cfg["range"], cfg["stiffness"]
+        if (not isinstance(rng, (list, tuple)) or len(rng) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in rng)
+                or not -math.pi - 1e-3 <= rng[0] <= rng[1] <= math.pi + 1e-3):
+            raise ValueError(f"{key}.range must be [low, high] in radians with -pi <= low <= high <= pi, got {rng!r}")
+        if isinstance(stiffness, bool) or not isinstance(stiffness, (int, float)) or not stiffness > 0:
+            raise ValueError(f"{key}.stiffness must be a number > 0 (yaw rate per radian of heading error, 1/s), "
+                             f"got {stiffness!r}")
+        self.heading_range = (float(rng[0]), float(rng[1]))
+        self.heading_stiffness = float(stiffness)
+        self.heading_targets = torch.zeros(self.num_envs, device=self.device)
+
+    def base_yaw(self) -> torch.Tensor:
+        """The base's heading (rad): the yaw of its (w, x, y, z) quaternion."""
+        q = self.sim.root_quat
+        return torch.atan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+
     def _resample_commands(self, mask: torch.Tensor) -> None:
+        """Draw new commands for the masked envs; with heading commands, then steer every env (called every step)."""
         lo, hi = self.command_ranges[:, 0], self.command_ranges[:, 1]
         new = lo + (hi - lo) * torch.rand(self.num_envs, 3, device=self.device)
         small = torch.norm(new[:, :2], dim=1, keepdim=True) < self.min_command_norm
         new[:, :2] = torch.where(small, torch.zeros_like(new[:, :2]), new[:, :2])
         self.commands[:] = torch.where(mask.unsqueeze(1), new, self.commands)
+        if self.heading_range is not None:
+            h_lo, h_hi = self.heading_range
+            heading = h_lo + (h_hi - h_lo) * torch.rand(self.num_envs, device=self.device)
+            self.heading_targets[:] = torch.where(mask, heading, self.heading_targets)
+            error = self.heading_targets - self.base_yaw()
+            error = torch.atan2(torch.sin(error), torch.cos(error))  # wrapped to [-pi, pi]
+            self.commands[:, 2] = torch.clamp(self.heading_stiffness * error, lo[2], hi[2])
 
     # ------------------------------------------------------------ reward terms
     def _reward_tracking_lin_vel(self) -> torch.Tensor:
