@@ -23,7 +23,7 @@ from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
 
 # A world with any joint speed above this (m/s or rad/s) has diverged and is reset as a NaN one is. Such speeds are
 # physically meaningless at millisecond steps (50 m per 5 ms step), and a world one step from NaN can hold 1e7: its
-# squared penalties (dof_acc) reached 1e9 per episode on the GPU and spiked PPO's value loss.
+# squared penalty (dof_acc) pushed a logged per-episode mean to -1.5e7 on the GPU and spiked PPO's value loss.
 DIVERGED_SPEED = 1.0e4
 
 # Overflow bits we report, and the task YAML key that fixes each.

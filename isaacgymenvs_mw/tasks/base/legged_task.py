@@ -2,7 +2,8 @@
 Go1, ...).
 
 The robot gets a command (forward and sideways velocity, yaw rate), sampled from YAML ranges and resampled on
-a timer, and must follow it; with ``env.commands.heading`` the yaw rate steers towards a sampled heading instead. Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
+a timer, and must follow it; with ``env.commands.heading`` the yaw rate steers towards a sampled heading instead.
+Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
 Rewards are legged_gym's: one ``_reward_<name>`` method per term, weighted by ``rewards.scales.<name>`` times the
 policy dt; a zero scale removes the term. Everything a user would tune lives in the task YAML.
 
