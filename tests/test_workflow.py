@@ -77,12 +77,24 @@ def reference_actions(actor: dict, obs: np.ndarray) -> np.ndarray:
     return x
 
 
-def test_test_mode_exports_onnx_and_torchscript_matching_the_policy(trained_cartpole, tmp_path, make_cartpole):
+def test_test_mode_exports_onnx_and_torchscript_matching_the_policy(trained_cartpole, tmp_path, make_cartpole,
+                                                                    monkeypatch):
     import onnxruntime as ort  # a test dependency (not skipped when missing: the export would go unchecked)
     ckpt = trained_cartpole
     out_dir = ckpt.parent / "exported"
     shutil.rmtree(out_dir, ignore_errors=True)
+    seen = {}
+    original_evaluate = launch.evaluate
+
+    def spy_evaluate(task, *args, **kwargs):
+        seen["schedule_steps"] = float(task.randomizer.step_count)
+        return original_evaluate(task, *args, **kwargs)
+
+    monkeypatch.setattr(launch, "evaluate", spy_evaluate)
     run(compose_config(cartpole_args(tmp_path / "runs", "test=True", f"checkpoint={ckpt}")))
+    # Test mode evaluates under the schedules' state at the checkpoint, not at their start.
+    trained = load_ckpt(ckpt)["iter"] * int(compose_config(cartpole_args(tmp_path)).train.runner.num_steps_per_env)
+    assert trained > 0 and seen["schedule_steps"] == trained
     onnx_path, jit_path = out_dir / "policy.onnx", out_dir / "policy.pt"
     assert onnx_path.is_file() and jit_path.is_file()
 
@@ -164,7 +176,8 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
         saved = self.alg.save()
         at_start.update(actor={k: v.clone() for k, v in saved["actor_state_dict"].items()},
                         critic={k: v.clone() for k, v in saved["critic_state_dict"].items()},
-                        iteration=self.current_learning_iteration)
+                        iteration=self.current_learning_iteration,
+                        schedule_steps=float(self.env.task.randomizer.step_count))
         return original_learn(self, *args, **kwargs)
 
     monkeypatch.setattr(Runner, "learn", spy_learn)
@@ -186,8 +199,10 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
     saved_cfg = (second_dir / "config.yaml").read_text()
     assert str(ckpt3) in saved_cfg
 
-    # The resumed run started from the checkpoint's weights and iteration.
+    # The resumed run started from the checkpoint's weights and iteration, and its randomisation schedules and
+    # penalty curriculum from the checkpoint's env steps per env (3 iterations of `steps`), not from 0.
     assert at_start["iteration"] == 3
+    assert at_start["schedule_steps"] == 3 * steps
     for part in ("actor", "critic"):
         for key, value in state3[f"{part}_state_dict"].items():
             assert torch.equal(at_start[part][key], value), (part, key)

@@ -255,4 +255,7 @@ def load_checkpoint(runner: Runner, checkpoint: Path, task) -> None:
                 f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"
             )
     runner.load(str(checkpoint), map_location=task.rl_device)
+    # Randomisation schedules and the penalty curriculum count env steps per env: a resumed run goes on from the
+    # checkpoint's, and test mode evaluates under the conditions the policy had reached.
+    task.set_train_info(runner.current_learning_iteration * int(runner.cfg["num_steps_per_env"]) * task.num_envs)
 
