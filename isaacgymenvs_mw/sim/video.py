@@ -130,6 +130,7 @@ class VideoRecorder:
         self.model = copy.copy(sim.mj_model)
         self.model.vis.global_.offwidth = max(self.width, int(self.model.vis.global_.offwidth))
         self.model.vis.global_.offheight = max(self.height, int(self.model.vis.global_.offheight))
+        self._ground = _ground_ids(self.model)  # styled as ground and left out of the camera's framing
         self._style_model()
         self.data = mujoco.MjData(self.model)
         mujoco.mj_forward(self.model, self.data)  # qpos0: used to frame the model
@@ -159,11 +160,10 @@ class VideoRecorder:
         m.vis.map.znear = min(float(m.vis.map.znear), _NEAR_CLIP_M / float(m.stat.extent))
         m.vis.map.zfar = min(float(m.vis.map.zfar), _FAR_CLIP_M / float(m.stat.extent))
         default_grey = np.array([0.5, 0.5, 0.5, 1.0])
-        ground = _ground_ids(m)
         for g in range(m.ngeom):
             if not np.allclose(m.geom_rgba[g], default_grey) or int(m.geom_matid[g]) >= 0:
                 continue  # the asset chose a colour or material: keep it
-            m.geom_rgba[g] = _GROUND_RGBA if g in ground else _BODY_RGBA
+            m.geom_rgba[g] = _GROUND_RGBA if g in self._ground else _BODY_RGBA
 
     def _add_floor_grid(self) -> None:
         """Draw grid lines on each horizontal plane around the camera's target: without them a tracked robot
@@ -207,9 +207,8 @@ class VideoRecorder:
         m, d = self.model, self.data
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
         corners = []
-        ground = _ground_ids(m)
         for g in range(m.ngeom):
-            if g in ground:
+            if g in self._ground:
                 continue
             center, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
             local = center + signs * half

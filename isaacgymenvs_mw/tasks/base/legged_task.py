@@ -273,8 +273,7 @@ class LeggedTask(VecTask):
         if cfg is None:
             return
         key = "env.rewards.penaltyCurriculum"
-        if not hasattr(cfg, "keys") or set(cfg.keys()) != {"start", "steps"}:
-            raise ValueError(f"{key} must be a mapping with exactly the keys start and steps, got {cfg!r}")
+        _require_keys(cfg, key, ("start", "steps"))
         try:
             start, steps = float(cfg["start"]), cfg["steps"]
         except (TypeError, ValueError):
@@ -469,8 +468,7 @@ class LeggedTask(VecTask):
         if cfg is None:
             return
         key = "env.commands.heading"
-        if not hasattr(cfg, "keys") or set(cfg.keys()) != {"range", "stiffness"}:
-            raise ValueError(f"{key} must be a mapping with exactly the keys range and stiffness, got {cfg!r}")
+        _require_keys(cfg, key, ("range", "stiffness"))
         rng, stiffness = cfg["range"], cfg["stiffness"]
         if (not isinstance(rng, (list, tuple)) or len(rng) != 2
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in rng)
@@ -624,3 +622,9 @@ class LeggedTask(VecTask):
 
 def _body_names(spec) -> list[str]:
     return [b.name for b in spec.bodies]
+
+
+def _require_keys(cfg, key: str, names: tuple[str, ...]) -> None:
+    """A YAML option given as a mapping must hold exactly ``names``: a missing or misspelt one is an error."""
+    if not hasattr(cfg, "keys") or set(cfg.keys()) != set(names):
+        raise ValueError(f"{key} must be a mapping with exactly the keys {' and '.join(names)}, got {cfg!r}")
