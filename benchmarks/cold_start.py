@@ -6,7 +6,10 @@ run). For each it reports, from the moment the process was started:
   - ``task_built_s``: the run's "[train] ..." line (model built, kernels loaded, networks made);
   - ``first_iteration_s``: the first "[it 1/...]" line, i.e. the first training iteration done (rollout with the
     post-physics step compiled, and the PPO update);
-  - ``total_s``: the whole run.
+  - ``total_s``: the whole run;
+  - ``timeline``: every other line the run printed (kernel progress, step compilation, ...) with its time.
+--profile_dir DIR also runs each under cProfile (DIR/cold.prof, DIR/warm1.prof, ...) to break the start-up down;
+the profiler slows Python-heavy phases, so take the times above from a run without it.
 Prints one JSON object. The caches live in a temporary folder unless --cache_dir names one.
 
   python benchmarks/cold_start.py --task Go1 [--num_envs 4096] [--sim_device cuda:0] [--warm_runs 2]
@@ -28,14 +31,15 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 FIRST_ITERATION = re.compile(r"^\[it\s+\d+/\d+\]")
 
 
-def timed_run(args: argparse.Namespace, cache: Path, runs: Path) -> dict:
-    cmd = [sys.executable, str(REPO_ROOT / "train.py"), f"task={args.task}", f"max_iterations={args.iterations}",
+def timed_run(args: argparse.Namespace, cache: Path, runs: Path, name: str) -> dict:
+    profile = ["-m", "cProfile", "-o", str(Path(args.profile_dir) / f"{name}.prof")] if args.profile_dir else []
+    cmd = [sys.executable, *profile, str(REPO_ROOT / "train.py"), f"task={args.task}", f"max_iterations={args.iterations}",
            "headless=True", f"sim_device={args.sim_device}", f"rl_device={args.sim_device}", f"runs_dir={runs}"]
     if args.num_envs:
         cmd.append(f"num_envs={args.num_envs}")
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "WARP_CACHE_PATH": str(cache / "warp"),
            "TORCHINDUCTOR_CACHE_DIR": str(cache / "inductor"), "TRITON_CACHE_DIR": str(cache / "triton")}
-    out: dict = {"task_built_s": None, "first_iteration_s": None}
+    out: dict = {"task_built_s": None, "first_iteration_s": None, "timeline": []}
     lines = []
     start = time.perf_counter()
     with subprocess.Popen(cmd, cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -47,6 +51,8 @@ def timed_run(args: argparse.Namespace, cache: Path, runs: Path) -> dict:
                 out["task_built_s"] = now
             if out["first_iteration_s"] is None and FIRST_ITERATION.match(line):
                 out["first_iteration_s"] = now
+            if not FIRST_ITERATION.match(line):
+                out["timeline"].append(f"{now:7.1f} s  {line.rstrip()[:150]}")
         rc = proc.wait()
     out["total_s"] = time.perf_counter() - start
     out["returncode"] = rc
@@ -64,6 +70,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=2)
     parser.add_argument("--warm_runs", type=int, default=1)
     parser.add_argument("--cache_dir", default="", help="where the fresh caches go (default: a temporary folder)")
+    parser.add_argument("--profile_dir", default="", help="also profile each run with cProfile, files go here")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="cold_start_") as tmp:
@@ -71,8 +78,10 @@ def main() -> None:
         if cache.exists() and any(cache.iterdir()):
             sys.exit(f"--cache_dir={cache} is not empty: a cold run needs empty caches")
         runs = Path(tmp) / "runs"
-        cold = timed_run(args, cache, runs)
-        warm = [timed_run(args, cache, runs) for _ in range(args.warm_runs)]
+        if args.profile_dir:
+            Path(args.profile_dir).mkdir(parents=True, exist_ok=True)
+        cold = timed_run(args, cache, runs, "cold")
+        warm = [timed_run(args, cache, runs, f"warm{i + 1}") for i in range(args.warm_runs)]
     print(json.dumps({"task": args.task, "num_envs": args.num_envs or "task default", "sim_device": args.sim_device,
                       "cpu_count": os.cpu_count(), "cold": cold, "warm": warm}, indent=2))
 

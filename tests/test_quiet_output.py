@@ -68,3 +68,34 @@ def test_kernels_are_ready_before_the_first_step(tmp_path):
     assert "STEPPED" in after
     assert re.search(r"Warp kernels on cpu: \d+ modules ready", before)
     assert " load on device " not in after, after  # reset, steps and forward found every module loaded
+
+
+def test_block_size_queries_are_recorded_not_compiled():
+    # MuJoCo Warp asks Warp for an occupancy-based block size, which on CUDA compiles the module on the spot; the dry
+    # run must record that module (at the default block size, the variant the query loads) and compile nothing.
+    import types
+
+    import warp as wp
+
+    from isaacgymenvs_mw.sim import kernels
+
+    @wp.kernel(module="unique")
+    def double(x: wp.array(dtype=float)):
+        i = wp.tid()
+        x[i] = 2.0 * x[i]
+
+    real_query = wp.get_suggested_block_size
+    gpu = types.SimpleNamespace(is_cuda=True, sm_count=132)  # stands for a CUDA device; nothing runs on it
+    answers = []
+
+    def entry_point():
+        answers.append(wp.get_suggested_block_size(double, gpu))
+        answers.append(wp.get_suggested_block_size(double, "cpu"))
+        wp.launch(double, dim=4, inputs=[wp.zeros(4, dtype=float, device="cpu")], block_dim=64, device="cpu")
+
+    recorded = kernels._record_launches([entry_point])
+    assert recorded == [(double.module, None), (double.module, 64)]
+    assert answers[0][0] > 0 and answers[0][1] == 132
+    assert answers[1] == real_query(double, "cpu") == (1, 1)
+    assert not double.module.execs  # neither the query nor the launch compiled it
+    assert wp.get_suggested_block_size is real_query

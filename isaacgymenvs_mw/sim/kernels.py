@@ -69,6 +69,11 @@ def _record_launches(entry_points: Sequence[Callable[[], None]]) -> list[tuple[o
     only loops over device values are ``capture_while``/``capture_if``, whose bodies are run once here (both
     branches of an ``if``) so that their kernels are recorded too. Copies and fills still run, which is why the
     entry points work on scratch data.
+
+    MuJoCo Warp sizes some launches with ``wp.get_suggested_block_size``, which on CUDA compiles the kernel's
+    module then and there, in this thread: on a heightfield (the convex collision kernels) that was about a minute
+    of a cold AnymalTerrain start on an H100 before the parallel load began. During the recording the query
+    returns a stand-in size and records the module with the default block size, the variant the real query loads.
     """
     found: dict[tuple[object, int | None], None] = {}
 
@@ -88,9 +93,18 @@ def _record_launches(entry_points: Sequence[Callable[[], None]]) -> list[tuple[o
             if callable(branch):
                 branch(**kwargs)
 
-    names = ("launch", "launch_tiled", "capture_while", "capture_if")
+    def suggest_block_size(kernel, device=None) -> tuple[int, int]:
+        device = device if hasattr(device, "is_cuda") else wp.get_device(device)
+        if not device.is_cuda:
+            return (1, 1)  # what Warp answers on the CPU, without loading anything
+        if not getattr(kernel, "is_generic", False):
+            found[(kernel.module, None)] = None
+        return (256, max(1, int(device.sm_count)))  # any plausible size: recorded launches do not run
+
+    names = ("launch", "launch_tiled", "capture_while", "capture_if", "get_suggested_block_size")
     saved = {name: getattr(wp, name) for name in names}
     wp.launch, wp.launch_tiled, wp.capture_while, wp.capture_if = record, record, run_while, run_if
+    wp.get_suggested_block_size = suggest_block_size
     try:
         for fn in entry_points:
             fn()
