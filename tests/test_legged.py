@@ -38,6 +38,7 @@ QUIET = [
     "~task.task.randomization_params.push",
     "task.task.randomization_params.actor_params.rigid_shape_properties.friction.range=[1.0,1.0]",
     "~task.task.randomization_params.observations",
+    "task.env.rewards.penaltyCurriculum=null",  # full penalty scales from the first step (Anymal ramps them in)
 ]
 
 # Facts typed from their sources (named per entry).
@@ -608,7 +609,7 @@ def test_penalty_curriculum_scales_penalties_linearly_over_env_steps(robot):
     keep = {"tracking_lin_vel": 1.5, "action_rate": -0.2, "termination": -50.0}
     scales = yaml_cfg(robot).env.rewards.scales
     overrides = [f"task.env.rewards.scales.{k}={keep.get(k, 0.0)}" for k in scales]
-    curriculum = ["+task.env.rewards.penaltyCurriculum.start=0.25", "+task.env.rewards.penaltyCurriculum.steps=100"]
+    curriculum = ["task.env.rewards.penaltyCurriculum={start:0.25,steps:100}"]
     task = make_legged(robot, [*QUIET, *overrides, *curriculum, "task.env.rewards.onlyPositiveRewards=False"])
     rot = write_known_root_state(task, robot)
     v_body = np.einsum("nji,nj->ni", rot, V_WORLD)
@@ -634,7 +635,7 @@ def test_penalty_curriculum_scales_penalties_linearly_over_env_steps(robot):
     ({"start": 0.5}, "exactly the keys start and steps"),
 ])
 def test_penalty_curriculum_bad_input_names_the_key(value, complaint):
-    overrides = [f"+task.env.rewards.penaltyCurriculum.{k}={v}" for k, v in value.items()]
+    overrides = ["task.env.rewards.penaltyCurriculum={" + ",".join(f"{k}:{v}" for k, v in value.items()) + "}"]
     with pytest.raises(ValueError, match=re.escape(complaint)) as err:
         make_legged("Go1", [*QUIET, *overrides])
     assert "env.rewards.penaltyCurriculum" in str(err.value)
