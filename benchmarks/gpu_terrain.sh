@@ -3,7 +3,8 @@
 #  1. train (CACHE=cold empties Warp's and the compiled step's caches first), at most LIMIT seconds;
 #  2. from the TensorBoard events: the first iteration whose mean terrain level reaches 60 % of the top level, and
 #     its time since the process started;
-#  3. test mode on 1024 envs over every level (curriculum off): tracking error and per-level survival;
+#  3. test mode on 1024 envs over every level (curriculum off): tracking error and per-level survival (the whole
+#     line in OUTDIR/TASK.CACHE.eval.txt);
 # THROUGHPUT=1 also runs the flat/terrain throughput pair at 4096 envs and the no-sync check on terrain.
 # Usage: bash benchmarks/gpu_terrain.sh TASK cold|warm OUTDIR [LIMIT_S]
 # OUTDIR/done appears when everything is written. A 600-second run does not fit one device call with its
@@ -53,7 +54,7 @@ print(json.dumps({"task": cfg.task.name, "top_level": top, "iterations": len(lev
 PY
 ckpt=$(ls -t "$run_dir"/model_*.pt 2>/dev/null | head -1)
 [ -n "$ckpt" ] && timeout 300 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 \
-  task.env.terrain.curriculum=False 2>&1 | grep "\[eval\] {" | cut -c1-1500
+  task.env.terrain.curriculum=False 2>&1 | grep "\[eval\] {" | tee "$out/$task.$cache.eval.txt" | cut -c1-1500
 if [ "${THROUGHPUT:-0}" = 1 ]; then
   flat=${task%Terrain}
   for t in "$flat" "$task"; do
