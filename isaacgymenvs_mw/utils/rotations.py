@@ -19,6 +19,17 @@ def quat_rotate_inverse(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return v - w * t + torch.cross(xyz, t, dim=-1)
 
 
+def yaw_from_quat(q: torch.Tensor) -> torch.Tensor:
+    """Heading (rad, about world z) of quaternions q (N, 4); the form holds for unnormalised q too."""
+    w, x, y, z = q.unbind(-1)
+    return torch.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+
+
+def wrap_to_pi(angle: torch.Tensor) -> torch.Tensor:
+    """Angles (rad) wrapped to [-pi, pi]."""
+    return torch.atan2(torch.sin(angle), torch.cos(angle))
+
+
 def quat_from_yaw(yaw: torch.Tensor) -> torch.Tensor:
     half = 0.5 * yaw
     zeros = torch.zeros_like(yaw)

@@ -27,7 +27,7 @@ from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
-from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
+from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
 
 class LeggedTask(VecTask):
@@ -483,8 +483,7 @@ class LeggedTask(VecTask):
 
     def base_yaw(self) -> torch.Tensor:
         """The base's heading (rad): the yaw of its (w, x, y, z) quaternion."""
-        q = self.sim.root_quat
-        return torch.atan2(2.0 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1.0 - 2.0 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+        return yaw_from_quat(self.sim.root_quat)
 
     def _resample_commands(self, mask: torch.Tensor) -> None:
         """Draw new commands for the masked envs; with heading commands, then steer every env (called every step)."""
@@ -497,8 +496,7 @@ class LeggedTask(VecTask):
             h_lo, h_hi = self.heading_range
             heading = h_lo + (h_hi - h_lo) * torch.rand(self.num_envs, device=self.device)
             self.heading_targets[:] = torch.where(mask, heading, self.heading_targets)
-            error = self.heading_targets - self.base_yaw()
-            error = torch.atan2(torch.sin(error), torch.cos(error))  # wrapped to [-pi, pi]
+            error = wrap_to_pi(self.heading_targets - self.base_yaw())
             self.commands[:, 2] = torch.clamp(self.heading_stiffness * error, lo[2], hi[2])
 
     # ------------------------------------------------------------ reward terms

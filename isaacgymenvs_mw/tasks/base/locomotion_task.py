@@ -28,7 +28,7 @@ import torch
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import whole_number
-from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse
+from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
 # env keys every locomotion task YAML sets (IsaacGymEnvs' names where it has them).
 _SCALAR_KEYS = (
@@ -207,10 +207,9 @@ class LocomotionTask(VecTask):
         self.angvel_loc[:] = quat_rotate_inverse(q, quat_rotate(sim.root_quat, sim.root_ang_vel))
         w, x, y, z = q.unbind(-1)
         self.roll[:] = torch.atan2(2.0 * (w * x + y * z), w * w - x * x - y * y + z * z)
-        self.yaw[:] = torch.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
+        self.yaw[:] = yaw_from_quat(q)
         walk_angle = torch.atan2(to_target[:, 1], to_target[:, 0])
-        diff = walk_angle - self.yaw
-        self.angle_to_target[:] = torch.atan2(torch.sin(diff), torch.cos(diff))
+        self.angle_to_target[:] = wrap_to_pi(walk_angle - self.yaw)
 
     # --------------------------------------------------------------- stepping
     def pre_physics_step(self, actions: torch.Tensor) -> None:
