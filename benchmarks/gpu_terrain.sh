@@ -5,6 +5,7 @@
 #     its time since the process started;
 #  3. test mode on 1024 envs over every level (curriculum off): tracking error and per-level survival (the whole
 #     line in OUTDIR/TASK.CACHE.eval.txt);
+# OVERRIDES="k=v ..." adds Hydra overrides to the training and the test run (say so wherever the numbers go).
 # THROUGHPUT=1 also runs the flat/terrain throughput pair at 4096 envs and the no-sync check on terrain.
 # Usage: bash benchmarks/gpu_terrain.sh TASK cold|warm OUTDIR [LIMIT_S]
 # OUTDIR/done appears when everything is written. A 600-second run does not fit one device call with its
@@ -18,7 +19,7 @@ mkdir -p "$out"; rm -f "$out/done"
 trap 'touch "$out/done"' EXIT  # also when a step fails
 [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp" "/tmp/torchinductor_$(whoami)" "${HOME}/.triton/cache"
 t0=$(date +%s.%N)
-timeout -s INT "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" > "$out/$task.$cache.log" 2>&1
+timeout -s INT "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" ${OVERRIDES:-} > "$out/$task.$cache.log" 2>&1
 rc=$?
 t1=$(date +%s.%N)
 grep -E "^\[it +(1|2|100|200|400|600|800|1000|1200|1500)/|\[train\] (done|stopped)|Error" "$out/$task.$cache.log" \
@@ -54,7 +55,7 @@ print(json.dumps({"task": cfg.task.name, "top_level": top, "iterations": len(lev
 PY
 ckpt=$(ls -t "$run_dir"/model_*.pt 2>/dev/null | head -1)
 [ -n "$ckpt" ] && timeout 300 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 \
-  task.env.terrain.curriculum=False 2>&1 | grep "\[eval\] {" | tee "$out/$task.$cache.eval.txt" | cut -c1-1500
+  task.env.terrain.curriculum=False ${OVERRIDES:-} 2>&1 | grep "\[eval\] {" | tee "$out/$task.$cache.eval.txt" | cut -c1-1500
 if [ "${THROUGHPUT:-0}" = 1 ]; then
   flat=${task%Terrain}
   for t in "$flat" "$task"; do
