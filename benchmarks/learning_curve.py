@@ -8,6 +8,7 @@ time, not the process wall time: start-up (kernel compilation, model build) is r
 
   python benchmarks/learning_curve.py runs/Humanoid/<stamp>/summary.json --out docs/humanoid_learning_curve.png
   python benchmarks/learning_curve.py runs/Ant/*/summary.json --labels seed42 seed7 --out docs/ant_curve.png
+  python benchmarks/learning_curve.py a/summary.json b/summary.json --key Episode/terrain_level --out terrain.png
 
 Needs matplotlib (``pip install -e ".[plot]"``).
 """
@@ -29,25 +30,28 @@ def curve(summary: dict, key: str) -> tuple[list[float], list[float]]:
     return xs, ys
 
 
-def plot(summaries: list[dict], labels: list[str], out: Path, with_length: bool) -> None:
+AXIS_LABELS = {"mean_episode_reward": "mean episode reward", "mean_episode_length": "mean episode length (steps)",
+               "Episode/terrain_level": "mean terrain level"}
+
+
+def plot(summaries: list[dict], labels: list[str], out: Path, keys: list[str]) -> None:
+    """One panel per history key, one line per run."""
     import matplotlib
 
     matplotlib.use("Agg")  # files only, no display
     import matplotlib.pyplot as plt
 
-    rows = 2 if with_length else 1
-    fig, axes = plt.subplots(rows, 1, figsize=(7, 3.2 * rows), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(len(keys), 1, figsize=(7, 3.2 * len(keys)), sharex=True, squeeze=False)
     for summary, label in zip(summaries, labels):
-        for ax, key in zip(axes[:, 0], ("mean_episode_reward", "mean_episode_length")):
+        for ax, key in zip(axes[:, 0], keys):
             xs, ys = curve(summary, key)
             ax.plot(xs, ys, label=label, linewidth=1.5)
-    axes[0, 0].set_ylabel("mean episode reward")
-    if with_length:
-        axes[1, 0].set_ylabel("mean episode length (steps)")
+    for ax, key in zip(axes[:, 0], keys):
+        ax.set_ylabel(AXIS_LABELS.get(key, key))
     axes[-1, 0].set_xlabel("training time (s): rollouts + updates")
     first = summaries[0]
     startup = float(first.get("wall_time_s", 0.0)) - float(first.get("train_time_s", 0.0))
-    title = (f"{first.get('task', '?')}: {first.get('num_envs', '?')} envs on {first.get('device', '?')}; "
+    title = (f"{first.get('task', '?')}: {first.get('num_envs', '?')} envs on {first.get('device', '?')}\n"
              f"start-up {startup:.0f} s before the first iteration")
     axes[0, 0].set_title(title, fontsize=9)
     for ax in axes[:, 0]:
@@ -66,6 +70,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True, help="PNG to write")
     parser.add_argument("--labels", nargs="*", help="one legend label per summary (default: its run folder)")
     parser.add_argument("--length", action="store_true", help="add a panel with the mean episode length")
+    parser.add_argument("--key", action="append", default=[],
+                        help="add a panel with this per-iteration history key, e.g. Episode/terrain_level (repeatable)")
     args = parser.parse_args()
     labels = args.labels or [p.parent.name for p in args.summaries]
     if len(labels) != len(args.summaries):
@@ -75,8 +81,13 @@ def main() -> None:
         data = json.loads(path.read_text())
         if not any(r.get("mean_episode_reward") is not None for r in data.get("history", [])):
             parser.error(f"{path}: its history has no iteration with a finished episode; nothing to plot")
+        for key in args.key:
+            if not any(r.get(key) is not None for r in data.get("history", [])):
+                known = sorted({k for r in data.get("history", []) for k in r if k not in ("iteration", "losses")})
+                parser.error(f"--key {key}: {path} has no iteration with it; its history has {', '.join(known)}")
         summaries.append(data)
-    plot(summaries, labels, args.out, args.length)
+    keys = ["mean_episode_reward"] + (["mean_episode_length"] if args.length else []) + args.key
+    plot(summaries, labels, args.out, keys)
     print(json.dumps({"png": str(args.out), "runs": len(summaries)}))
 
 

@@ -54,3 +54,22 @@ def test_script_refuses_a_run_without_finished_episodes(tmp_path):
     proc = subprocess.run([sys.executable, str(SCRIPT), str(path), "--out", str(tmp_path / "x.png")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0 and "no iteration with a finished episode" in proc.stderr
+
+
+def test_script_adds_a_panel_per_key_and_names_a_missing_one(tmp_path):
+    path = tmp_path / "summary.json"
+    data = summary([0.5, 1.0, 2.0])
+    for i, record in enumerate(data["history"]):
+        record["Episode/terrain_level"] = 2.5 - 0.5 * i
+    path.write_text(json.dumps(data))
+    one, two = tmp_path / "one.png", tmp_path / "two.png"
+    for out, extra in ((one, []), (two, ["--key", "Episode/terrain_level"])):
+        proc = subprocess.run([sys.executable, str(SCRIPT), str(path), "--out", str(out), *extra],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    # a second panel doubles the figure's height (3.2 inches per panel)
+    assert iio.imread(two).shape[0] == 2 * iio.imread(one).shape[0]
+    proc = subprocess.run([sys.executable, str(SCRIPT), str(path), "--out", str(tmp_path / "x.png"),
+                           "--key", "Episode/terain_level"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0
+    assert "Episode/terain_level" in proc.stderr and "Episode/terrain_level" in proc.stderr
