@@ -288,6 +288,24 @@ def test_a_fall_earns_the_death_cost_and_resets_to_the_start_pose(request, name)
     assert float(task.progress_speed[0]) == pytest.approx(float(moved), abs=1e-3)
 
 
+def test_a_blown_up_world_is_reset_by_the_task_and_reports_its_episode(ant):
+    """VecTask puts a world with a NaN state back in the model's initial pose; the task resets it in the same step,
+    so its episode's sums are reported and cleared (before, they ran on into the next episode)."""
+    task = ant
+    task.reset()
+    for _ in range(3):
+        task.step(torch.zeros(task.num_envs, task.num_actions))
+    before = task.episode_sums.clone()
+    bad = 2
+    task.sim.qvel[bad, 0] = float("nan")
+    _, rew, reset, extras = task.step(torch.zeros(task.num_envs, task.num_actions))
+    assert bool(extras["nonfinite_resets"][bad]) and int(reset[bad]) == 1 and float(rew[bad]) == 0.0
+    assert not reset[torch.arange(task.num_envs) != bad].any()
+    reported = torch.stack(list(extras["episode_terms"].values()))
+    assert torch.allclose(reported, before[bad]) and not task.episode_sums[bad].any()
+    assert int(task.progress_buf[bad]) == 0 and torch.isfinite(task.sim.qvel).all()
+
+
 def test_episode_times_out_at_episode_length():
     task = make("Ant", num_envs=2, overrides=["task.env.episodeLength=5"])
     task.reset()

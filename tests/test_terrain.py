@@ -327,6 +327,26 @@ def test_curriculum_moves_envs_up_down_and_wraps_past_the_top(task):
                                task.terrain.origins[after.numpy(), task.terrain_types.numpy()], atol=1e-6)
 
 
+def test_a_blown_up_world_respawns_on_its_cell_and_keeps_its_level(task):
+    """VecTask puts a blown-up world back in the model's initial pose, at the map's corner, far from its cell.
+    The task resets it in the same step: on its own cell, and without a curriculum move for that distance."""
+    task.reset()
+    task.curriculum = True
+    for _ in range(2):
+        task.step(task.zero_actions())
+    bad = 3
+    level = int(task.terrain_levels[bad])
+    corner = torch.tensor(task.sim.mj_model.qpos0[:2], dtype=torch.float)  # where VecTask's reset puts the base
+    assert float(torch.norm(task.env_origins[bad, :2] - corner)) > 0.5 * task.cell_length  # would count as "up"
+    task.sim.qvel[bad, 0] = float("nan")
+    _, _, reset, extras = task.step(task.zero_actions())
+    assert bool(extras["nonfinite_resets"][bad]) and int(reset[bad]) == 1
+    assert int(task.terrain_levels[bad]) == level
+    offset = (task.sim.root_pos[bad, :2] - task.env_origins[bad, :2]).abs()
+    assert bool((offset <= task.spawn_jitter + 1e-5).all()), offset
+    assert int(task.progress_buf[bad]) == 0 and not task.episode_sums[bad].any()
+
+
 def test_wrap_past_the_top_draws_every_level():
     task_levels = []
     t = make(overrides=[T + "numLevels=4", T + "maxInitLevel=3"])

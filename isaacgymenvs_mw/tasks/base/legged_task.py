@@ -145,7 +145,8 @@ class LeggedTask(VecTask):
         down = (walked < asked) & ~up
         level = self.terrain_levels + up.long() - down.long()
         level = torch.where(level >= self.num_levels, torch.randint_like(level, self.num_levels), level.clamp(min=0))
-        self.terrain_levels[:] = torch.where(mask, level, self.terrain_levels)
+        # A blown-up world's position is the model's initial one, not where it walked: its level stays.
+        self.terrain_levels[:] = torch.where(mask & ~self._nonfinite_buf, level, self.terrain_levels)
         self.env_origins[:] = self.terrain_origins[self.terrain_levels, self.terrain_types]
 
     def _init_joint_settings(self, env: dict) -> None:
@@ -373,6 +374,9 @@ class LeggedTask(VecTask):
         hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)
         if self.termination_height is not None:
             hit |= self._base_height() < self.termination_height
+        # A world VecTask reset for a blown-up state sits in the model's initial pose, not on its spawn: reset it
+        # here as well, so that it respawns on its cell with fresh commands and its episode sums are reported.
+        hit |= self._nonfinite_buf
         timeout = self.progress_buf >= self.max_episode_length - 1
         self.reset_buf[:] = (hit | timeout).long()
         self.terminated = hit & ~timeout

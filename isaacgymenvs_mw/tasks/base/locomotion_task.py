@@ -249,7 +249,9 @@ class LocomotionTask(VecTask):
         self.episode_sums += terms.masked_fill((fallen | self._nonfinite_buf).unsqueeze(1), 0.0)
         self.rew_buf[:] = total * self.k["rewardScale"]
         timeout = self.progress_buf >= self.max_episode_length - 1
-        self.reset_buf[:] = (fallen | timeout).long()
+        # A blown-up world sits in the model's initial pose (VecTask reset it): reset it here too, so its episode
+        # sums are reported and its start is randomised like any other.
+        self.reset_buf[:] = (fallen | timeout | self._nonfinite_buf).long()
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         mask = self.env_mask(env_ids)
