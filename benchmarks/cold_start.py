@@ -49,10 +49,10 @@ def timed_run(args: argparse.Namespace, cache: Path, runs: Path, name: str) -> d
             lines.append(line.rstrip())
             if out["task_built_s"] is None and line.startswith("[train] ") and " envs on " in line:
                 out["task_built_s"] = now
-            if out["first_iteration_s"] is None and FIRST_ITERATION.match(line):
-                out["first_iteration_s"] = now
             if not FIRST_ITERATION.match(line):
                 out["timeline"].append(f"{now:7.1f} s  {line.rstrip()[:150]}")
+            elif out["first_iteration_s"] is None:
+                out["first_iteration_s"] = now
         rc = proc.wait()
     out["total_s"] = time.perf_counter() - start
     out["returncode"] = rc

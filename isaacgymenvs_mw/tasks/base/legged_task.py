@@ -146,7 +146,7 @@ class LeggedTask(VecTask):
         level = self.terrain_levels + up.long() - down.long()
         level = torch.where(level >= self.num_levels, torch.randint_like(level, self.num_levels), level.clamp(min=0))
         # A blown-up world's position is the model's initial one, not where it walked: its level stays.
-        self.terrain_levels[:] = torch.where(mask & ~self._nonfinite_buf, level, self.terrain_levels)
+        self.terrain_levels[:] = torch.where(mask & ~self.nonfinite_buf, level, self.terrain_levels)
         self.env_origins[:] = self.terrain_origins[self.terrain_levels, self.terrain_types]
 
     def _init_joint_settings(self, env: dict) -> None:
@@ -376,7 +376,7 @@ class LeggedTask(VecTask):
             hit |= self._base_height() < self.termination_height
         # A world VecTask reset for a blown-up state sits in the model's initial pose, not on its spawn: reset it
         # here as well, so that it respawns on its cell with fresh commands and its episode sums are reported.
-        hit |= self._nonfinite_buf
+        hit |= self.nonfinite_buf
         timeout = self.progress_buf >= self.max_episode_length - 1
         self.reset_buf[:] = (hit | timeout).long()
         self.terminated = hit & ~timeout
@@ -390,7 +390,7 @@ class LeggedTask(VecTask):
             terms = terms * (1.0 + self._penalty_terms * (self.penalty_factor() - 1.0))
         # A world that blew up this step earns nothing (VecTask zeroes its reward too); its terms read body states
         # that are still NaN, and one NaN in the episode sums would stay there for the rest of the run.
-        terms = terms.masked_fill(self._nonfinite_buf.unsqueeze(1), 0.0)
+        terms = terms.masked_fill(self.nonfinite_buf.unsqueeze(1), 0.0)
         self.episode_sums += terms
         if self.only_positive_rewards:
             clamped = terms @ self._clamped_terms

@@ -246,12 +246,12 @@ class LocomotionTask(VecTask):
         total = torch.where(fallen, torch.full_like(self.rew_buf, self.k["deathCost"]), terms.sum(dim=1))
         # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it. A world
         # that blew up earns nothing (its body states are NaN until the next physics step; VecTask zeroes its reward).
-        self.episode_sums += terms.masked_fill((fallen | self._nonfinite_buf).unsqueeze(1), 0.0)
+        self.episode_sums += terms.masked_fill((fallen | self.nonfinite_buf).unsqueeze(1), 0.0)
         self.rew_buf[:] = total * self.k["rewardScale"]
         timeout = self.progress_buf >= self.max_episode_length - 1
         # A blown-up world sits in the model's initial pose (VecTask reset it): reset it here too, so its episode
         # sums are reported and its start is randomised like any other.
-        self.reset_buf[:] = (fallen | timeout | self._nonfinite_buf).long()
+        self.reset_buf[:] = (fallen | timeout | self.nonfinite_buf).long()
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         mask = self.env_mask(env_ids)

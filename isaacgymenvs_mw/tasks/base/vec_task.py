@@ -11,6 +11,11 @@ Resets are selected by masks, not index lists, so that a step never waits on the
 On CUDA the post-physics work is compiled with torch.compile (``sim.compileStep``) and, with the pre-physics
 work, captured as CUDA graphs (``sim.captureStep``): the hooks must stay device-only tensor code.
 ``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
+A world whose state blew up (NaN/inf, or a speed past ``sim.simulator.DIVERGED_SPEED``) is put back in the
+model's initial pose before ``post_physics_step`` and marked in ``nonfinite_buf``; VecTask zeroes its reward and
+reports it as a reset. A task that decides its resets inside ``post_physics_step`` includes ``nonfinite_buf`` in
+them, so that its own ``reset_idx`` places the world and closes its episode in the same step (LeggedTask,
+LocomotionTask).
 With ``task.randomize: True`` the randomisation layer (``tasks/base/randomization.py``) wraps ``reset_idx`` so that
 the resetting worlds draw their randomised model values before the task's own reset runs.
 """
@@ -262,7 +267,7 @@ class VecTask:
         # Step outputs live in fixed buffers so that a captured step graph can write them.
         self._obs_out = torch.zeros_like(self.obs_buf)
         self._states_out = torch.zeros_like(self.states_buf)
-        self._nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
+        self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self._graph_actions = torch.zeros((n, self.num_actions), device=dev, dtype=torch.float)
         self._step_graphs: tuple[torch.cuda.CUDAGraph, torch.cuda.CUDAGraph] | None = None
         self._step_graph_warmup = 3
@@ -448,7 +453,7 @@ class VecTask:
         self.control_steps += 1
 
         self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
-        self.extras["nonfinite_resets"] = self._nonfinite_buf
+        self.extras["nonfinite_resets"] = self.nonfinite_buf
         # The next step rewrites the output buffers in place while the learner still holds this observation.
         obs = self._obs_out if self.obs_history is None else self.obs_history.out
         self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
@@ -477,7 +482,7 @@ class VecTask:
         self.progress_buf.masked_fill_(blown_up, 0)
         # Tasks read it while computing rewards: quantities the physics derives from the state (body positions and
         # velocities) are still non-finite in those worlds until the next physics step.
-        self._nonfinite_buf.copy_(blown_up)
+        self.nonfinite_buf.copy_(blown_up)
 
         # post_physics_step adds one to progress_buf and may reset envs (which zeroes it); the step count at
         # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
