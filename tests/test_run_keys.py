@@ -85,8 +85,9 @@ def test_runs_dir_under_a_file_is_named_and_a_good_one_is_left_untouched(tmp_pat
 @pytest.mark.parametrize("signum, sigint_at_start, repeats", [(signal.SIGTERM, signal.SIG_DFL, 1),
                                                               (signal.SIGINT, signal.SIG_DFL, 1),
                                                               (signal.SIGINT, signal.SIG_IGN, 1),
-                                                              (signal.SIGTERM, signal.SIG_DFL, 2)],
-                         ids=["SIGTERM", "SIGINT", "SIGINT-ignored-at-start", "SIGTERM-twice"])
+                                                              (signal.SIGTERM, signal.SIG_DFL, 2),
+                                                              (signal.SIGINT, signal.SIG_DFL, 2)],
+                         ids=["SIGTERM", "SIGINT", "SIGINT-ignored-at-start", "SIGTERM-twice", "SIGINT-twice"])
 def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signum, sigint_at_start, repeats):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=100000",
@@ -123,24 +124,36 @@ def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signu
     assert f"stopped by {signal.Signals(signum).name}" in text
 
 
-def test_a_signal_only_asks_the_runner_to_stop_and_a_second_sigint_insists():
+def _deliver(signum):
+    os.kill(os.getpid(), signum)
+    for _ in range(1000):  # Python runs signal handlers between bytecodes
+        pass
+
+
+def test_a_signal_only_asks_the_runner_to_stop_and_a_later_sigint_insists():
     # The handler must not raise where the signal lands (inside a compiled step, a CUDA graph, TensorBoard's queue):
     # it records the signal, and Runner.learn raises StopRequested between env steps.
-    def deliver(signum):
-        os.kill(os.getpid(), signum)
-        for _ in range(1000):  # Python runs signal handlers between bytecodes
-            pass
-
     runner = SimpleNamespace(stop_signal=None)
     before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
-    with _stop_on_signal(runner):
-        deliver(signal.SIGTERM)
+    with _stop_on_signal(runner, repeat_window_s=0.0):  # every repeat comes "later"
+        _deliver(signal.SIGTERM)
         assert runner.stop_signal == signal.SIGTERM
-        deliver(signal.SIGTERM)  # `timeout` sends two: ignored
+        _deliver(signal.SIGTERM)  # `timeout` sends two: ignored
         with pytest.raises(KeyboardInterrupt):
-            deliver(signal.SIGINT)
+            _deliver(signal.SIGINT)
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
 
     with pytest.raises(StopRequested) as info:
         Runner._stop_if_requested(runner)
     assert info.value.signum == signal.SIGTERM and isinstance(info.value, KeyboardInterrupt)
+
+
+def test_sigint_pair_from_timeout_is_one_request():
+    # `timeout -s INT` signals the process and then its group: the second SIGINT, even after the handler has run,
+    # must not raise where it lands.
+    runner = SimpleNamespace(stop_signal=None)
+    with _stop_on_signal(runner, repeat_window_s=3600.0):
+        _deliver(signal.SIGINT)
+        assert runner.stop_signal == signal.SIGINT
+        _deliver(signal.SIGINT)  # would raise KeyboardInterrupt here if it counted as insisting
+        assert runner.stop_signal == signal.SIGINT

@@ -168,25 +168,30 @@ def _signal_number(err: KeyboardInterrupt) -> int:
 
 
 @contextmanager
-def _stop_on_signal(runner: Runner):
+def _stop_on_signal(runner: Runner, repeat_window_s: float = 1.0):
     """While training, SIGTERM (schedulers' preemption or time limit) and SIGINT (Ctrl-C, ``kill -INT``) ask the
     runner to stop; it stops at the next env step, saves its checkpoint and raises ``StopRequested``, so the summary
     is written too. The handler raises nothing itself: an exception thrown into library code at an arbitrary point
     (a compiled step, a CUDA graph, TensorBoard's queue) is how a stopped run can lose both. A second SIGINT is a
-    user insisting: it raises KeyboardInterrupt at once (the checkpoint is still attempted). Repeated SIGTERMs are
-    ignored (``timeout`` sends one to the process and one to its group). SIGINT is handled even where the process
-    started with it ignored (a background job of a non-interactive shell). Only the main thread can handle
-    signals; elsewhere nothing changes."""
+    user insisting: it raises KeyboardInterrupt at once (the checkpoint is still attempted), but only when it comes
+    ``repeat_window_s`` or more after the first: ``timeout -s INT`` sends one signal to the process and one to its
+    process group, and when Python ran the handler between the two, the second one raised inside a compiled step
+    on an H100 and the process died without its checkpoint or summary (twelfth session). Repeated SIGTERMs are
+    ignored. SIGINT is handled even where the process started with it ignored (a background job of a
+    non-interactive shell). Only the main thread can handle signals; elsewhere nothing changes."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
+    first_at: list[float] = []
+
     def handler(signum, frame):
         if runner.stop_signal is None:
             runner.stop_signal = signum
-        elif signum == signal.SIGINT:
+            first_at.append(time.monotonic())
+        elif signum == signal.SIGINT and time.monotonic() - first_at[0] >= repeat_window_s:
             raise KeyboardInterrupt()
 
     previous = signal.signal(signal.SIGTERM, handler)
