@@ -20,6 +20,7 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
+from isaacgymenvs_mw.sim.stability import warn_unstable_drives
 from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
 
 DRIVE_MODES = ("none", "effort", "position")
@@ -264,7 +265,10 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         )
 
     _apply_options(spec, request.options)
-    return spec.compile()
+    model = spec.compile()
+    # Here, where the timestep and the inertias are final: a drive too stiff for them blows up every world.
+    warn_unstable_drives(model, {j for j, d in request.drives.items() if d.mode == "position"})
+    return model
 
 
 def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dict]]:
