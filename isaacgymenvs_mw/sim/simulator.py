@@ -19,6 +19,7 @@ import warp as wp
 
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
+from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
 
 # A world with any joint speed above this (m/s or rad/s) has diverged and is reset as a NaN one is. Such speeds are
@@ -111,6 +112,8 @@ class Simulator:
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._graphs: dict[str, object] = {}
         self.torque_speed: TorqueSpeedLimit | None = None
+        self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
+        self._body_id_cache: dict[tuple, torch.Tensor] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
 
     def _load_kernels(self, nconmax: int | None, njmax: int | None) -> None:
@@ -255,14 +258,25 @@ class Simulator:
         """Advance every world by ``substeps`` physics steps."""
 
         limiter = self.torque_speed
+        forces = self.body_forces if self.body_forces is not None and self.body_forces.active else None
+        pose = forces is not None and forces.needs_kinematics
 
         def physics() -> None:
+            if forces is not None:
+                forces.save_user()
             for _ in range(self.substeps):
                 if limiter is not None:
                     limiter.launch()
+                if pose:
+                    mjw.kinematics(self.model, self.data)
+                if forces is not None:
+                    forces.launch()
                 mjw.step(self.model, self.data)
+            if forces is not None:
+                forces.end_step()
 
-        self._run("physics", physics)
+        # One graph per variant: the force kernel (and its pose refresh) costs nothing until forces are used.
+        self._run("physics" + ("+forces" if forces is not None else "") + ("+pose" if pose else ""), physics)
         self.physics_steps += self.substeps
 
     def forward(self) -> None:
@@ -286,6 +300,8 @@ class Simulator:
         self.qpos.copy_(torch.where(rows, self._qpos0, self.qpos))
         for view in self._zeroed_on_reset:
             view.masked_fill_(mask.view((-1,) + (1,) * (view.dim() - 1)), 0)
+        if self.body_forces is not None:
+            self.body_forces.clear(mask)
 
     def save_state(self) -> dict[str, torch.Tensor]:
         """A copy of every world's carried state (positions, velocities, controls, forces, solver warm start)."""
@@ -372,6 +388,83 @@ class Simulator:
         vel = self.cvel[:, body_ids]
         offset = self.xpos[:, body_ids] - self.subtree_com[:, roots]
         return vel[..., 3:] + torch.cross(vel[..., :3], offset, dim=-1)
+
+    # ------------------------------------------------------- external forces
+    def body_ids(self, bodies: Sequence[str | int] | torch.Tensor | None = None) -> torch.Tensor:
+        """Body indices on the device from names or indices (None: every body, the world body 0 included).
+
+        Lists are resolved once and cached, so calling this inside a step costs no host-to-device copy after the
+        first time; a tensor is taken as it is (its range is not checked: that would sync).
+        """
+        if isinstance(bodies, torch.Tensor):
+            return bodies.to(self.device, torch.long)
+        key = ("all",) if bodies is None else tuple(bodies)
+        ids = self._body_id_cache.get(key)
+        if ids is None:
+            if bodies is None:
+                rows = list(range(len(self.body_names)))
+            else:
+                rows = [self._body_index(b) for b in bodies]
+            ids = self._body_id_cache[key] = torch.tensor(rows, dtype=torch.long, device=self.device)
+        return ids
+
+    def _body_index(self, body: str | int) -> int:
+        if isinstance(body, str):
+            if body not in self.body_names:
+                raise ValueError(f"bodies: no body named {body!r}; valid: {self.body_names}")
+            return self.body_names.index(body)
+        if not 0 <= int(body) < len(self.body_names):
+            raise ValueError(f"bodies: index {body} is out of range; valid: 0..{len(self.body_names) - 1}")
+        return int(body)
+
+    def apply_body_forces(
+        self,
+        forces: torch.Tensor | None = None,
+        torques: torch.Tensor | None = None,
+        bodies: Sequence[str | int] | torch.Tensor | None = None,
+        positions: torch.Tensor | None = None,
+        frame: str = "world",
+        persist: bool = False,
+    ) -> None:
+        """Push bodies with forces and torques, (N, len(bodies), 3) each, from the next ``simulate()`` on.
+
+        IsaacGym's ``apply_rigid_body_force_tensors`` / ``..._at_pos_tensors``, which act for one simulate call.
+        - ``persist=False``: acts during the next ``simulate()`` only (all its physics steps), then is dropped;
+          ``persist=True``: acts every step until ``clear_body_forces()`` or a reset of the world. Calls add up.
+        - ``frame="world"``: forces and torques in world axes, fixed over the step; ``positions`` are world points
+          that stay put while the body moves (MuJoCo's ``mj_applyFT`` at each physics step: torque about the
+          centre of mass ``t + (p - com) x f``). ``frame="body"``: forces, torques and ``positions`` in the body's
+          own frame (points relative to the body origin); the wrench turns with the body at every physics step.
+        - Without ``positions`` forces act at the centre of mass.
+        Torch ops only (no host sync), so it may sit in a captured ``pre_physics_step``; bodies given as a list are
+        resolved once and cached. Once used, each step launches one small kernel per physics step (plus a pose
+        refresh when a body-frame wrench or a point was used) until ``clear_body_forces()``. ``xfrc_applied`` keeps
+        the user's own writes only: these forces are added to it inside the physics and do not show there.
+        """
+        if frame not in FRAMES:
+            raise ValueError(f"frame={frame!r} is invalid: give one of {list(FRAMES)}")
+        if forces is None and torques is None:
+            raise ValueError("apply_body_forces: give forces, torques or both (both are None)")
+        if positions is not None and forces is None:
+            raise ValueError("positions given without forces: a point of application needs a force")
+        ids = self.body_ids(bodies)
+        expected = (self.num_worlds, int(ids.shape[0]), 3)
+        values = []
+        for name, value in (("forces", forces), ("torques", torques), ("positions", positions)):
+            if value is not None and tuple(value.shape) != expected:
+                raise ValueError(f"{name} has shape {tuple(value.shape)}; valid: (num_envs, len(bodies), 3) = "
+                                 f"{expected}")
+            values.append(None if value is None else value.to(self.device, torch.float32))
+        if self.body_forces is None:
+            self.body_forces = BodyForces(self.data, self.num_worlds, self.mj_model.nbody,
+                                          self.model_field("body_ipos"), self.device)
+        self.body_forces.add(ids, *values, frame=frame, persist=bool(persist))
+
+    def clear_body_forces(self) -> None:
+        """Drop every force of ``apply_body_forces`` (one-step and persistent) and stop launching its kernel."""
+        if self.body_forces is not None:
+            self.body_forces.clear()
+            self.body_forces.active = self.body_forces.needs_kinematics = False
 
     def body_id(self, name: str) -> int:
         if name not in self.body_names:

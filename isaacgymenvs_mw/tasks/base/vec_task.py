@@ -46,6 +46,7 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer, wrap_reset
@@ -124,6 +125,7 @@ class VecTask:
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
         self.check_action_size()
+        self.blowups = BlowupLog(self.sim)  # which joint ran away: named by the periodic check in step()
         self._setup_randomization()
 
         self.viewer = None
@@ -463,6 +465,7 @@ class VecTask:
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
+            self.blowups.poll(self.overflow_check_interval)
         if self.viewer is not None:
             self.render()
         if self.video_recorder is not None:
@@ -478,7 +481,7 @@ class VecTask:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
         # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
         # its episode restarts and the step is reported as a termination, so training goes on.
-        blown_up = self.sim.reset_nonfinite()
+        blown_up = self.blowups.reset_nonfinite()
         self.progress_buf.masked_fill_(blown_up, 0)
         # Tasks read it while computing rewards: quantities the physics derives from the state (body positions and
         # velocities) are still non-finite in those worlds until the next physics step.
@@ -642,6 +645,29 @@ class VecTask:
         if self.viewer is not None:
             self.viewer.close()
             self.viewer = None
+
+    # ------------------------------------------------------ forces on bodies (IsaacGym's force tensors)
+    def apply_body_forces(
+        self,
+        forces: torch.Tensor | None = None,
+        torques: torch.Tensor | None = None,
+        bodies: list[str] | list[int] | torch.Tensor | None = None,
+        positions: torch.Tensor | None = None,
+        frame: str = "world",
+        persist: bool = False,
+    ) -> None:
+        """Forces/torques (num_envs, len(bodies), 3) on bodies for the coming env step (``persist``: until
+        ``clear_body_forces``), in the "world" or "body" frame, at the centre of mass or at ``positions``.
+
+        IsaacGym's ``apply_rigid_body_force_tensors`` / ``apply_rigid_body_force_at_pos_tensors``; call it from
+        ``pre_physics_step``. ``bodies``: names or MuJoCo body indices (None: all, world body 0 included).
+        Semantics in ``Simulator.apply_body_forces`` and docs/porting.md.
+        """
+        self.sim.apply_body_forces(forces, torques, bodies, positions, frame, persist)
+
+    def clear_body_forces(self) -> None:
+        """Drop every force of ``apply_body_forces``, one-step and persistent."""
+        self.sim.clear_body_forces()
 
 
 def _hook_message(cls: type, name: str) -> str:
