@@ -21,6 +21,7 @@ import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
+from isaacgymenvs_mw.utils.rotations import quat_rotate
 
 # A world with any joint speed above this (m/s or rad/s) has diverged and is reset as a NaN one is. Such speeds are
 # physically meaningless at millisecond steps (50 m per 5 ms step), and a world one step from NaN can hold 1e7: its
@@ -136,6 +137,7 @@ class Simulator:
         self.actuator_force = wp.to_torch(d.actuator_force)  # per actuator, after its force range
         self.xpos = wp.to_torch(d.xpos)
         self.xquat = wp.to_torch(d.xquat)
+        self.xipos = wp.to_torch(d.xipos)  # centres of mass, world frame
         # Body velocities as MuJoCo keeps them: (angular, linear) in world axes, about the subtree centre of mass of
         # the body's root (see body_lin_vel).
         self.cvel = wp.to_torch(d.cvel)
@@ -381,13 +383,43 @@ class Simulator:
             raise KeyError(f"no geom named '{name}'")
         return gid
 
-    def body_lin_vel(self, body_ids: torch.Tensor) -> torch.Tensor:
+    def body_lin_vel(self, body_ids: torch.Tensor | slice, com: bool = False) -> torch.Tensor:
         """(N, len(body_ids), 3) world-frame linear velocity of each body's origin (MuJoCo's mj_objectVelocity,
-        world axes), from the velocities and poses of the last physics step's forward pass."""
+        world axes), or of its centre of mass with ``com``, from the last physics step's forward pass."""
         roots = self._body_rootid[body_ids]
         vel = self.cvel[:, body_ids]
-        offset = self.xpos[:, body_ids] - self.subtree_com[:, roots]
-        return vel[..., 3:] + torch.cross(vel[..., :3], offset, dim=-1)
+        point = (self.xipos if com else self.xpos)[:, body_ids]
+        return vel[..., 3:] + torch.cross(vel[..., :3], point - self.subtree_com[:, roots], dim=-1)
+
+    def body_states(self, body_ids: torch.Tensor | None = None, com: bool = False) -> torch.Tensor:
+        """IsaacGym's rigid body state tensor: (N, nbody or len(body_ids), 13), all in the world frame.
+
+        Columns: position of the body frame's origin (0:3), orientation quaternion **(w, x, y, z)**, MuJoCo's order
+        (3:7; IsaacGym's is x, y, z, w), linear velocity of the body origin (7:10; with ``com`` of the centre of
+        mass, which is what PhysX reports), angular velocity (10:13). Body indices are MuJoCo's (0 is the world
+        body; ``body_names``). A new tensor, computed on the device from ``xpos``, ``xquat``, ``cvel``: the values
+        of the last forward pass, which after ``simulate()`` describe the start of its last physics step (call
+        ``forward()`` first for the current ``qpos``/``qvel``).
+        """
+        ids = slice(None) if body_ids is None else body_ids
+        return torch.cat((self.xpos[:, ids], self.xquat[:, ids], self.body_lin_vel(ids, com=com),
+                          self.cvel[:, ids, :3]), dim=-1)
+
+    def root_ang_vel_world(self) -> torch.Tensor:
+        """(N, 3) floating base angular velocity in the world frame (``root_ang_vel`` is in the body frame), from
+        the current ``qpos``/``qvel``."""
+        self._require_floating_base("root_ang_vel_world")
+        return quat_rotate(self.root_quat, self.root_ang_vel)
+
+    def root_states(self) -> torch.Tensor:
+        """IsaacGym's root state layout, (N, 13): position, quaternion **(w, x, y, z)**, linear and angular velocity,
+        all in the world frame, from the current ``qpos``/``qvel``; a new tensor (write with ``write_state``)."""
+        self._require_floating_base("root_states")
+        return torch.cat((self.root_pos, self.root_quat, self.root_lin_vel, self.root_ang_vel_world()), dim=-1)
+
+    def _require_floating_base(self, what: str) -> None:
+        if not self.floating_base:
+            raise ValueError(f"{what} needs a floating base, but the model's root is fixed (env.asset.fixBaseLink)")
 
     # ------------------------------------------------------- external forces
     def body_ids(self, bodies: Sequence[str | int] | torch.Tensor | None = None) -> torch.Tensor:
