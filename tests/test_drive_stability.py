@@ -137,3 +137,53 @@ def test_effective_inertia_on_a_floating_base_is_the_inverse_mass_matrix_diagona
     assert drive.inertia == pytest.approx(1.0 / np.linalg.inv(full)[dof, dof], rel=1e-6)
     assert drive.inertia < full[dof, dof] - 1e-6
     assert drive.omega_dt == pytest.approx(DT * math.sqrt(1.0 / drive.inertia), rel=1e-9)
+
+
+# Cartpole with its pole hinge on a PD drive far too stiff for the 60 Hz step, its force uncapped (the URDF's effort
+# limit would cap the spring, and the pole would chatter at the cap instead of diverging).
+STIFF_POLE = ["task.env.numActions=2", "+task.env.control.driveMode.cart_to_pole=position",
+              "+task.env.control.stiffness={cart_to_pole: 1e8}", "+task.env.control.effortLimit={cart_to_pole: 1e12}",
+              "+task.sim.overflowCheckInterval=2"]
+
+
+def test_blowup_warning_reaches_make_users_and_names_the_joint_mujoco_c_sees_diverge():
+    import isaacgymenvs_mw
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        task = isaacgymenvs_mw.make("Cartpole", num_envs=3, sim_device="cpu", rl_device="cpu", overrides=STIFF_POLE)
+        task.reset()
+        start_q, start_v = task.sim.qpos[0].double().numpy(), task.sim.qvel[0].double().numpy()
+        extras = task.step(task.zero_actions())[3]
+        assert bool(extras["nonfinite_resets"].all())  # one step is enough to blow every world up
+        task.step(task.zero_actions())  # the check runs every overflowCheckInterval (2) env steps
+    messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert any("PD drive of joint 'cart_to_pole'" in m for m in messages)  # at build time
+    (blowup,) = [m for m in messages if "blew up" in m]
+
+    # Reference: MuJoCo C steps the same model once from env 0's reset state with the same (zero) commands.
+    model = task.sim.mj_model
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = start_q, start_v
+    mujoco.mj_step(model, data)
+    dof = int(np.argmax(np.abs(data.qvel)))
+    joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(model.dof_jntid[dof]))
+    assert np.abs(data.qvel).max() > 1e4
+    assert blowup.startswith("3 world(s) blew up in the last 2 env steps")
+    assert f"First diverging joint: '{joint}' in world 0 (|velocity| {abs(data.qvel[dof]):.3g} " in blowup
+    for key in ("env.control.stiffness", "sim.dt", "env.controlFrequencyInv", "env.asset.armature"):
+        assert key in blowup
+
+
+def test_no_blowup_no_warning():
+    import isaacgymenvs_mw
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        task = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu",
+                                    overrides=["+task.sim.overflowCheckInterval=2"])
+        task.reset()
+        for _ in range(2):
+            task.step(task.zero_actions())
+    assert not [w for w in caught if "blew up" in str(w.message) or "PD drive" in str(w.message)]
+    assert task.blowups.poll() is None

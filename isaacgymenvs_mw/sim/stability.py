@@ -33,6 +33,10 @@ from collections.abc import Collection
 from dataclasses import dataclass
 
 import mujoco
+import numpy as np
+import torch
+
+from isaacgymenvs_mw.sim.simulator import DIVERGED_SPEED, Simulator
 
 # A drive is reported when dt·ω exceeds this fraction of its integrator's limit (a factor 2 in frequency, 4 in kp).
 SAFETY = 0.5
@@ -132,3 +136,65 @@ def warn_unstable_drives(model: mujoco.MjModel, yaml_drives: Collection[str] = (
             stacklevel=3,
         )
     return bad
+
+
+# What usually makes a world blow up, with the keys that change it (the blow-up warning's second half).
+BLOWUP_CAUSES = (
+    "Likely causes: PD drive gains too stiff for the timestep (env.control.stiffness / damping; a build-time "
+    "'PD drive ... numerically unstable' warning names such a drive), sim.dt too large (lower it; raising "
+    "env.controlFrequencyInv keeps the policy rate), or wrong asset inertias (tiny or zero masses and inertias in the "
+    "URDF <inertial> / MJCF; env.asset.armature adds rotor inertia to a joint); docs/config.md, 'Drive stability'."
+)
+
+
+class BlowupLog:
+    """Which joint ran away in the worlds ``Simulator.reset_nonfinite`` resets, reported by a periodic host check.
+
+    ``reset_nonfinite`` runs inside the step (device work only, capturable): it keeps each reset world's joint speeds
+    from just before the reset. ``poll`` runs where the host already syncs (VecTask's periodic overflow check) and
+    warns with the first blown-up world's fastest joint (a NaN/inf speed counts as the fastest).
+    """
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+        self.speed = torch.zeros_like(sim.qvel)  # |qvel| of each world at its last blow-up
+        self.seen = torch.zeros(sim.num_worlds, dtype=torch.bool, device=sim.device)  # blown up since the last poll
+        model = sim.mj_model
+        self._dof_labels = []  # how the warning names each dof
+        for dof in range(model.nv):
+            joint = int(model.dof_jntid[dof])
+            label = f"'{mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, joint) or f'joint{joint}'}'"
+            if int(model.jnt_type[joint]) == int(mujoco.mjtJoint.mjJNT_FREE):
+                part = dof - int(model.jnt_dofadr[joint])
+                label += f" (floating base, {'linear' if part < 3 else 'angular'} velocity {'xyz'[part % 3]})"
+            self._dof_labels.append(label)
+
+    def reset_nonfinite(self) -> torch.Tensor:
+        """``sim.reset_nonfinite()``, keeping the reset worlds' joint speeds first; returns the reset mask."""
+        speed = self.sim.qvel.abs()  # a copy: the reset zeroes qvel
+        bad = self.sim.reset_nonfinite()
+        self.speed.copy_(torch.where(bad.view(-1, 1), torch.nan_to_num(speed, nan=math.inf), self.speed))
+        self.seen |= bad
+        return bad
+
+    def poll(self, interval: int | None = None) -> str | None:
+        """Host-side check (syncs): warn when worlds blew up since the last poll, naming the first one's fastest joint;
+        returns the message (None: none blew up). ``interval``: env steps since the last poll, for the text."""
+        seen = self.seen.cpu().numpy().copy()  # a copy: on the CPU device numpy() shares memory with the zeroed flags
+        if not seen.any():
+            return None
+        world = int(np.argmax(seen))
+        speeds = self.speed[world].cpu().numpy().copy()
+        dof = int(np.argmax(speeds))
+        self.seen.zero_()
+        since = f"in the last {interval} env steps" if interval else "since the last check"
+        nonfinite = int(np.isinf(speeds).sum())
+        speed = (f"|velocity| {speeds[dof]:.3g}" if not nonfinite else
+                 "velocity NaN/inf" + (f", as were {nonfinite - 1} other dof(s)" if nonfinite > 1 else ""))
+        message = (
+            f"{int(seen.sum())} world(s) blew up {since} (NaN/inf state, or a joint speed above {DIVERGED_SPEED:.0e}) "
+            f"and were reset to the initial pose. First diverging joint: {self._dof_labels[dof]} in world {world} "
+            f"({speed} when it was reset). {BLOWUP_CAUSES}"
+        )
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+        return message

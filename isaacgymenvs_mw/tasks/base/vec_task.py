@@ -13,7 +13,8 @@ work, captured as CUDA graphs (``sim.captureStep``): the hooks must stay device-
 ``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
 A world whose state blew up (NaN/inf, or a speed past ``sim.simulator.DIVERGED_SPEED``) is put back in the
 model's initial pose before ``post_physics_step`` and marked in ``nonfinite_buf``; VecTask zeroes its reward and
-reports it as a reset. A task that decides its resets inside ``post_physics_step`` includes ``nonfinite_buf`` in
+reports it as a reset (the periodic ``sim.overflowCheckInterval`` check warns naming the first diverging joint,
+``sim.stability.BlowupLog``). A task that decides its resets inside ``post_physics_step`` includes ``nonfinite_buf`` in
 them, so that its own ``reset_idx`` places the world and closes its episode in the same step (LeggedTask,
 LocomotionTask).
 With ``task.randomize: True`` the randomisation layer (``tasks/base/randomization.py``) wraps ``reset_idx`` so that
@@ -46,6 +47,7 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     movable_joint_names,
 )
+from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer, wrap_reset
@@ -124,6 +126,7 @@ class VecTask:
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
         self.check_action_size()
+        self.blowups = BlowupLog(self.sim)  # which joint ran away: named by the periodic check in step()
         self._setup_randomization()
 
         self.viewer = None
@@ -463,6 +466,7 @@ class VecTask:
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
+            self.blowups.poll(self.overflow_check_interval)
         if self.viewer is not None:
             self.render()
         if self.video_recorder is not None:
@@ -478,7 +482,7 @@ class VecTask:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
         # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
         # its episode restarts and the step is reported as a termination, so training goes on.
-        blown_up = self.sim.reset_nonfinite()
+        blown_up = self.blowups.reset_nonfinite()
         self.progress_buf.masked_fill_(blown_up, 0)
         # Tasks read it while computing rewards: quantities the physics derives from the state (body positions and
         # velocities) are still non-finite in those worlds until the next physics step.
