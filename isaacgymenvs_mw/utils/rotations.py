@@ -34,3 +34,15 @@ def quat_from_yaw(yaw: torch.Tensor) -> torch.Tensor:
     half = 0.5 * yaw
     zeros = torch.zeros_like(yaw)
     return torch.stack((torch.cos(half), zeros, zeros, torch.sin(half)), dim=-1)
+
+
+def quat_axis(q: torch.Tensor, axis: int = 0) -> torch.Tensor:
+    """World direction (N, 3) of the body's x (0), y (1) or z (2) axis: IsaacGym's ``quat_axis``, but q is (w, x, y, z).
+
+    Porting IsaacGym code: its quaternions are (x, y, z, w); pass ``q[..., [3, 0, 1, 2]]`` for one read from IGE.
+    """
+    if axis not in (0, 1, 2):
+        raise ValueError(f"axis={axis!r} is invalid: give 0 (x), 1 (y) or 2 (z)")
+    basis = torch.zeros(q.shape[0], 3, dtype=q.dtype, device=q.device)
+    basis[:, axis] = 1.0
+    return quat_rotate(q, basis)

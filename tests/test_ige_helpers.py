@@ -1,0 +1,80 @@
+"""IsaacGym helper names (quat_axis, torch_rand_float, tensor_clamp) against formulas written here in numpy, and
+against MuJoCo C's own quaternion-to-matrix conversion."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from isaacgymenvs_mw.utils.torch_utils import quat_axis, tensor_clamp, torch_rand_float
+
+
+def random_quats(n: int, seed: int = 0) -> np.ndarray:
+    q = np.random.default_rng(seed).normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def matrix_wxyz(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (w, x, y, z), the textbook expansion."""
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_quat_axis_is_a_column_of_the_rotation_matrix(axis):
+    q = random_quats(16)
+    got = quat_axis(torch.tensor(q, dtype=torch.float64), axis).numpy()
+    for i in range(len(q)):
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, q[i])  # MuJoCo C reads (w, x, y, z) too
+        np.testing.assert_allclose(got[i], mat.reshape(3, 3)[:, axis], atol=1e-12)
+        np.testing.assert_allclose(got[i], matrix_wxyz(q[i])[:, axis], atol=1e-12)
+
+
+def test_quat_axis_reads_w_first():
+    """A quarter turn about z (w, x, y, z) = (cos 45°, 0, 0, sin 45°) takes x to y; read as (x, y, z, w) it would
+    be a half turn about x, taking x to x."""
+    q = torch.tensor([[np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]], dtype=torch.float64)
+    np.testing.assert_allclose(quat_axis(q, 0).numpy(), [[0.0, 1.0, 0.0]], atol=1e-12)
+    with pytest.raises(ValueError, match="axis=3 is invalid"):
+        quat_axis(q, 3)
+
+
+def test_torch_rand_float_is_uniform_in_its_bounds():
+    torch.manual_seed(0)
+    x = torch_rand_float(-2.0, 3.0, (4000, 3), "cpu")
+    assert x.shape == (4000, 3) and x.device.type == "cpu" and x.dtype == torch.float32
+    values = x.numpy().ravel()
+    assert values.min() >= -2.0 and values.max() < 3.0
+    # Uniform on [-2, 3): mean 0.5, variance 25 / 12; each fifth of the interval holds a fifth of the draws.
+    assert abs(values.mean() - 0.5) < 0.05 and abs(values.var() - 25 / 12) < 0.1
+    counts = np.histogram(values, bins=5, range=(-2.0, 3.0))[0] / values.size
+    np.testing.assert_allclose(counts, 0.2, atol=0.02)
+    torch.manual_seed(0)
+    assert torch.equal(torch_rand_float(-2.0, 3.0, (4000, 3), "cpu"), x)  # seeded runs repeat
+
+
+def test_torch_rand_float_takes_per_column_bounds():
+    lower, upper = torch.tensor([0.0, 10.0]), torch.tensor([1.0, 10.5])
+    x = torch_rand_float(lower, upper, (1000, 2), "cpu").numpy()
+    assert (x >= lower.numpy()).all() and (x < upper.numpy()).all()
+    assert x[:, 0].max() - x[:, 0].min() > 0.9 and x[:, 1].max() - x[:, 1].min() < 0.5
+
+
+def test_tensor_clamp_per_element_bounds():
+    rng = np.random.default_rng(1)
+    t = rng.normal(size=(50, 6)) * 3
+    lo = rng.uniform(-2.0, 0.0, size=6)
+    hi = rng.uniform(0.0, 2.0, size=6)
+    got = tensor_clamp(torch.tensor(t), torch.tensor(lo), torch.tensor(hi)).numpy()
+    want = np.where(t < lo, lo, np.where(t > hi, hi, t))
+    np.testing.assert_array_equal(got, want)
+    # Inverted bounds give the lower one (the max is taken last), as IsaacGym's does.
+    inverted = tensor_clamp(torch.tensor([0.0, 5.0, -5.0]), torch.tensor(1.0), torch.tensor(-1.0))
+    np.testing.assert_array_equal(inverted.numpy(), [1.0, 1.0, 1.0])
