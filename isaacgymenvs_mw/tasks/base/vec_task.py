@@ -114,6 +114,7 @@ class VecTask:
         self.total_train_env_frames = 0
         sim_cfg = config.get("sim", {})
         _check_sim_keys(sim_cfg)
+        warn_unused_ige_keys(env)
         self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
@@ -702,6 +703,35 @@ def joint_drives(control: dict, joints: list[str], owned: dict[str, str],
 SIM_KEYS = ("dt", "gravity", "integrator", "solver", "cone", "iterations", "ls_iterations", "ccd_iterations",
             "ccd_tolerance", "impratio", "enableContacts", "nconmax", "njmax", "overflowCheckInterval", "useGraphs",
             "captureStep", "compileStep", "deterministic")
+
+
+# IsaacGymEnvs `env` keys (dotted below env) that a ported YAML may carry: accepted, so that it runs, but nothing here
+# reads them; why not, for the one warning at task build.
+IGE_UNUSED_ENV_KEYS = {
+    "envSpacing": "each env is its own MuJoCo world, so there is no shared space to lay envs out in",
+    "enableDebugVis": "there is no debug drawing (headless=False opens MuJoCo's viewer on env 0; capture_video records "
+                      "it)",
+    "enableCameraSensors": "IsaacGym's camera sensors are not made from this key",
+    "aggregateMode": "PhysX aggregates (broad-phase groups of an actor's bodies) have no MuJoCo counterpart",
+    "plane.staticFriction": "MuJoCo has one sliding friction per contact: set env.plane.friction",
+    "plane.dynamicFriction": "MuJoCo has one sliding friction per contact: set env.plane.friction",
+    "plane.restitution": "MuJoCo's contacts are soft constraints without a restitution coefficient",
+}
+
+
+def warn_unused_ige_keys(env: dict) -> list[str]:
+    """Warn once, naming every ``IGE_UNUSED_ENV_KEYS`` key present in the ``env`` section; returns them."""
+    present = []
+    for key in IGE_UNUSED_ENV_KEYS:
+        section, _, name = key.rpartition(".")
+        node = env.get(section) if section else env
+        if hasattr(node, "keys") and name in node:
+            present.append(key)
+    if present:
+        warnings.warn("IsaacGymEnvs key(s) with no effect here: "
+                      + "; ".join(f"env.{k} ({IGE_UNUSED_ENV_KEYS[k]})" for k in present)
+                      + ". Remove them from the task YAML to silence this.", RuntimeWarning, stacklevel=3)
+    return present
 
 
 def _check_sim_keys(sim: dict) -> None:
