@@ -78,6 +78,8 @@ def test_exported_metadata_equals_the_task(exported):
     urdf_model = mujoco.MjModel.from_xml_path(str(REPO_ROOT / "assets" / env.asset.assetFileName))
     joints = [urdf_model.joint(j).name for j in range(urdf_model.njnt)]
     assert meta["joint_names"] == joints and len(joints) == env.numActions == 12
+    # Action i commands actuator i; the framework's drives are named after their joints, so both lists agree.
+    assert meta["actuator_names"] == joints and meta["actuator_joints"] == meta["joint_names"]
     assert meta["default_joint_pos"] == pytest.approx([default_angle(j) for j in joints])
     assert meta["action_scale"] == env.control.actionScale
     assert meta["stiffness"] == pytest.approx([20.0] * 12) and meta["damping"] == pytest.approx([0.5] * 12)
@@ -173,3 +175,25 @@ def test_deploy_example_runs_and_reports_tracking_error(exported):
     assert result["task"] == "Go1"
     assert np.isfinite(result["lin_vel_tracking_error"]) and np.isfinite(result["yaw_rate_tracking_error"])
     assert result["min_base_height"] > 0.1  # started standing on the floor
+
+
+def test_plain_task_policy_json_names_the_actuators_in_action_order(tmp_path):
+    """Cartpole (a plain VecTask, no joint metadata of its own): policy.json says which actuator each action drives.
+
+    Expected: cfg/task/Cartpole.yaml's driven joints (driveMode, not none), in the order MuJoCo compiles the URDF."""
+    cfg = OmegaConf.load(REPO_ROOT / "cfg" / "task" / "Cartpole.yaml").env
+    urdf_model = mujoco.MjModel.from_xml_path(str(REPO_ROOT / "assets" / cfg.asset.assetFileName))
+    joints = [urdf_model.joint(j).name for j in range(urdf_model.njnt)]
+    driven = [j for j in joints if cfg.control.driveMode.get(j, cfg.control.defaultDriveMode) != "none"]
+    assert driven == ["slider_to_cart"] and cfg.numActions == len(driven)
+
+    task = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu")
+    env = RslRlVecEnv(task)
+    train_cfg = rsl_rl_config(to_dict(compose_config(["task=Cartpole", *CPU_ARGS]).train))
+    train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
+    export_policy(Runner(env, train_cfg, log_dir=None, device="cpu"), tmp_path, task=task)
+    meta = json.loads((tmp_path / "policy.json").read_text())
+    assert meta["actuator_names"] == driven and meta["actuator_joints"] == driven
+    assert meta["num_actions"] == len(meta["actuator_names"])
+    assert "joint_names" not in meta
+    assert read_metadata(tmp_path / "policy.onnx")["actuator_names"] == driven
