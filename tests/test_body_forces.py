@@ -273,3 +273,29 @@ def test_task_push_acts_for_one_env_step(tmp_path):
         wrenches = [(env, 1, force[env, 0], torque[env, 0], point[env, 0], "body") for env in range(N)]
         reference_step(m, datas, wrenches if push else ())
         assert_matches(task.sim, datas)
+
+
+def test_first_captured_step_advances_once(model, monkeypatch):
+    """Where graphs are on, a graph's first call runs the physics eagerly (compiling) and then captures it; the
+    eager run's state is put back, so forces used for the first time still act for exactly one env step. Stand-ins
+    for Warp's capture run the captured function for real and make the launch a no-op (CPU has no graphs)."""
+
+    class RunningCapture:
+        def __init__(self, **kwargs) -> None:
+            self.graph = object()
+
+        def __enter__(self) -> "RunningCapture":
+            return self
+
+        def __exit__(self, *exc) -> bool:
+            return False
+
+    sim, datas = make_sim(model), reference_data(model)
+    monkeypatch.setattr(sim, "use_graphs", True)
+    monkeypatch.setattr("warp.ScopedCapture", RunningCapture)
+    monkeypatch.setattr("warp.capture_launch", lambda graph: None)
+    sim.apply_body_forces(as_torch(FORCES), as_torch(TORQUES), bodies=["box", "arm"], frame="body")
+    sim.simulate()
+    reference_step(model, datas, wrench_list("body", None))
+    assert_matches(sim, datas)
+    assert sim.body_forces.wrench[0].abs().sum() == 0  # the one-step slot was dropped by the captured run

@@ -239,8 +239,12 @@ class Simulator:
         return self.sensordata[:, self.contact_columns(bodies)]
 
     # ------------------------------------------------------------ execution
-    def _run(self, name: str, fn: Callable[[], None]) -> None:
-        """Run a fixed sequence of Warp launches, from a captured graph where graphs are on."""
+    def _run(self, name: str, fn: Callable[[], None], keep_state: bool = False) -> None:
+        """Run a fixed sequence of Warp launches, from a captured graph where graphs are on.
+
+        Before a graph is first captured ``fn`` runs once eagerly (to compile its kernels); with ``keep_state`` the
+        carried state is put back after that run, so that a first physics call advances the worlds once, not twice.
+        """
         if not self.use_graphs:
             with wp.ScopedDevice(self.wp_device):
                 fn()
@@ -248,7 +252,10 @@ class Simulator:
         graph = self._graphs.get(name)
         if graph is None:
             with wp.ScopedDevice(self.wp_device):
+                saved = self._snapshot() if keep_state else None
                 fn()  # compiles the kernels outside the capture
+                if saved is not None:
+                    self._restore(saved)
                 # By default Warp loads every module imported so far before a capture: all of MuJoCo Warp's,
                 # dozens this model never launches. After a recorded dry run the ones it does are loaded.
                 with wp.ScopedCapture(device=self.wp_device, force_module_load=not self._kernels_recorded) as capture:
@@ -278,7 +285,8 @@ class Simulator:
                 forces.end_step()
 
         # One graph per variant: the force kernel (and its pose refresh) costs nothing until forces are used.
-        self._run("physics" + ("+forces" if forces is not None else "") + ("+pose" if pose else ""), physics)
+        self._run("physics" + ("+forces" if forces is not None else "") + ("+pose" if pose else ""), physics,
+                  keep_state=True)
         self.physics_steps += self.substeps
 
     def forward(self) -> None:
@@ -313,6 +321,17 @@ class Simulator:
         """Put back a ``save_state`` copy in place; the next physics step continues from it."""
         for name, view in self._carried_state.items():
             view.copy_(state[name])
+
+    def _snapshot(self) -> dict[str, torch.Tensor]:
+        state = self.save_state()
+        if self.body_forces is not None:
+            state["body_forces"] = self.body_forces.wrench.clone()
+        return state
+
+    def _restore(self, state: dict[str, torch.Tensor]) -> None:
+        self.load_state(state)
+        if "body_forces" in state:
+            self.body_forces.wrench.copy_(state["body_forces"])
 
     def reset_nonfinite(self) -> torch.Tensor:
         """Reset worlds whose qpos or qvel holds NaN/inf, or whose qvel exceeds ``DIVERGED_SPEED`` (a world on its
