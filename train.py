@@ -2,6 +2,9 @@
 
 python train.py task=Cartpole test=True checkpoint=runs/Cartpole/<stamp>/model_60.pt   evaluates a policy.
 python train.py --config-dir /my/project/cfg task=MyTask task_module=my_tasks   a task from outside the repository.
+
+A bad value (ours or one Hydra refuses) ends the run with one line on stderr and exit status 2; ``verbose=True`` or
+HYDRA_FULL_ERROR=1 shows the traceback as well.
 """
 
 import signal
@@ -14,6 +17,7 @@ import hydra  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402
 
 import isaacgymenvs_mw.utils.config  # noqa: E402,F401  (registers the YAML resolvers)
+from isaacgymenvs_mw.utils.cli_errors import exit_on_input_error, report_input_errors  # noqa: E402
 
 
 @hydra.main(version_base="1.3", config_path="cfg", config_name="config")
@@ -21,16 +25,21 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     from isaacgymenvs_mw.learning.launch import run
-    from isaacgymenvs_mw.utils.config import record_task_dir
+    from isaacgymenvs_mw.utils.config import check_task_yaml, record_task_dir
 
-    record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the task YAML's folder
-    try:
-        run(cfg, started_at=_STARTED_AT)
-    except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: the run saved its checkpoint and summary
-        signum = int(getattr(err, "signum", signal.SIGINT))
-        print(f"[train] stopped by {signal.Signals(signum).name}", file=sys.stderr, flush=True)
-        sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
+    with exit_on_input_error():
+        check_task_yaml(cfg, HydraConfig.get())  # an empty task YAML, or one without name:, named by its path
+        record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the YAML's folder
+        try:
+            run(cfg, started_at=_STARTED_AT)
+        except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: the run saved its checkpoint and summary
+            signum = int(getattr(err, "signum", signal.SIGINT))
+            if not getattr(err, "reported", False):  # stopped before training began: nothing was saved
+                print(f"[train] stopped by {signal.Signals(signum).name} before the first training iteration ended: "
+                      "no checkpoint exists yet", file=sys.stderr, flush=True)
+            sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
 
 
 if __name__ == "__main__":
-    main()
+    with report_input_errors():
+        main()

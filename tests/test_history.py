@@ -134,5 +134,5 @@ def test_terms_need_a_task_with_declared_terms():
 
 
 def test_critic_history_needs_states():
-    with pytest.raises(ValueError, match=r"env\.history\.critic needs env\.numStates > 0"):
+    with pytest.raises(ValueError, match=r"task\.env\.history\.critic needs task\.env\.numStates > 0"):
         make("{critic:{length:2}}")

@@ -374,7 +374,7 @@ def test_mjcf_without_actuators_fails_naming_the_fix(tmp_path):
 
 
 def test_actuator_count_must_equal_num_actions():
-    with pytest.raises(ValueError, match=r"env.numActions=7 but the model has 8 actuators.*set env.numActions: 8"):
+    with pytest.raises(ValueError, match=r"env.numActions=7 but the model has 8 actuators.*set task.env.numActions: 8"):
         make("Ant", overrides=["task.env.numActions=7"])
 
 

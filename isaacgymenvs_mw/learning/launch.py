@@ -25,10 +25,11 @@ from isaacgymenvs_mw.learning.runner import (
     write_json,
 )
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
-from isaacgymenvs_mw.tasks import get_task_class
 from isaacgymenvs_mw.sim import set_verbose
-from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_dict
+from isaacgymenvs_mw.tasks import get_task_class
+from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, cpu_threads, to_dict
 from isaacgymenvs_mw.utils.device import check_device_pair, resolve_device
+from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError, one_line, under_task
 from isaacgymenvs_mw.utils.seeding import set_seed
 
 
@@ -36,6 +37,7 @@ def build_task(cfg: DictConfig):
     """Construct the task named by ``cfg.task_name`` on the configured devices."""
     check_run_config(cfg)
     set_verbose(cfg.get("verbose", False))
+    torch.set_num_threads(cpu_threads(cfg.get("cpu_threads", 1)))
     if cfg.get("task_module"):
         importlib.import_module(cfg.task_module)
     task_class = get_task_class(cfg.task_name)
@@ -51,10 +53,13 @@ def build_task(cfg: DictConfig):
     task_cfg = to_dict(cfg.task)
     # The run-level `deterministic` reaches the sim layer through the task's sim section (MuJoCo Warp's option).
     task_cfg.setdefault("sim", {})["deterministic"] = bool(cfg.get("deterministic", False))
-    return task_class(
-        task_cfg, rl_device=rl_device, sim_device=sim_device, graphics_device_id=cfg.graphics_device_id,
-        headless=cfg.headless, virtual_screen_capture=False, force_render=False,
-    )
+    try:
+        return task_class(
+            task_cfg, rl_device=rl_device, sim_device=sim_device, graphics_device_id=cfg.graphics_device_id,
+            headless=cfg.headless, virtual_screen_capture=False, force_render=False,
+        )
+    except ConfigError as err:  # the task names its keys from its own section; the command line says task.<key>
+        raise under_task(err) from err
 
 
 def run(cfg: DictConfig, started_at: float | None = None) -> dict:
@@ -70,7 +75,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     if not cfg.test and rank == 0:
         check_runs_dir(cfg.runs_dir)
 
-    task = build_task(cfg)
+    task = _build_with_notice(cfg)
     env = RslRlVecEnv(task)
     experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
     max_iterations = int(train_cfg.pop("max_iterations"))
@@ -150,11 +155,45 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
         print(f"[train] {ended} {wall:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
               f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
+        if interrupted is not None and summary["iterations"] == 0:
+            print("[train] no checkpoint exists yet: the first is written when an iteration ends", flush=True)
     task.close()
     _leave_process_group(runner)
     if interrupted is not None:
+        interrupted.reported = True  # train.py only sets the exit status
         raise interrupted  # train.py turns it into exit status 128 + signal number
     return summary
+
+
+# Worlds on the CPU device above which building and the first iteration take long enough to deserve a word.
+_MANY_CPU_WORLDS = 8192
+
+
+def _build_with_notice(cfg: DictConfig):
+    """build_task, telling the user when it will be slow (many worlds on the CPU) and what it took when it was."""
+    num_envs = cfg.num_envs if cfg.num_envs not in ("", None) else OmegaConf.select(
+        cfg, "task.env.numEnvs", default=0, throw_on_resolution_failure=False)  # build_task reports a bad value
+    on_cpu = resolve_device(cfg.sim_device, "sim_device") == "cpu" and not cfg.get("multi_gpu", False)
+    if on_cpu and isinstance(num_envs, int) and num_envs >= _MANY_CPU_WORLDS:
+        print(f"[train] {num_envs} worlds on the CPU: building them and the first iteration take minutes (Cartpole "
+              "steps about 75 k env-steps/s on 2 cores); a GPU runs them far faster", flush=True)
+    rss_before, t0 = _resident_bytes(), time.perf_counter()
+    task = build_task(cfg)
+    took = time.perf_counter() - t0
+    if took > 10.0:
+        grown = (_resident_bytes() - rss_before) / 2**30
+        print(f"[train] built {task.num_envs} worlds in {took:.0f} s; the process grew by {grown:.1f} GiB of host "
+              "memory", flush=True)
+    return task
+
+
+def _resident_bytes() -> int:
+    """This process's resident memory (Linux; 0 elsewhere, where the build report then shows no growth)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
 
 
 def seed_run(cfg: DictConfig, rank: int = 0) -> int:
@@ -238,11 +277,19 @@ def _new_run_dir(path: Path) -> Path:
 def _checkpoint_path(cfg: DictConfig) -> Path | None:
     if not cfg.checkpoint:
         if cfg.test:
-            raise ValueError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
+            raise ConfigError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
         return None
     path = Path(str(cfg.checkpoint)).expanduser().resolve()
     if not path.is_file():
-        raise FileNotFoundError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
+        raise MissingFileError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
+    try:  # before the simulator is built, which can take minutes
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:
+        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is not a readable checkpoint (truncated or not "
+                          f"written by torch.save: {one_line(str(err)).split('. ')[0]}); give a model_*.pt of a training run") from err
+    if not isinstance(state, dict) or "actor_state_dict" not in state:
+        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} holds no policy (no actor_state_dict); give a "
+                          "model_*.pt of a training run")
     return path
 
 
@@ -255,7 +302,7 @@ def load_checkpoint(runner: Runner, checkpoint: Path, task) -> None:
         ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
         num_obs = task.observation_space.shape[0]  # with env.history: the stacked size the policy sees
         if ckpt_obs != num_obs or ckpt_act != task.num_actions:
-            raise ValueError(
+            raise ConfigError(
                 f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
                 f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"
             )

@@ -18,6 +18,8 @@ from pathlib import Path
 from rsl_rl.utils.log_writer import LogWriter
 from torch.utils.tensorboard import SummaryWriter
 
+from isaacgymenvs_mw.utils.errors import ConfigError
+
 LOGGERS = ("tensorboard", "wandb")
 KEY = "train.runner.logger"
 _WANDB_CLASS_NAMES = ("wandb", "WandbLogWriter", "rsl_rl.utils:WandbLogWriter", "rsl_rl.utils.wandb_log_writer:"
@@ -35,7 +37,7 @@ def logger_kind(cfg: dict) -> tuple[str, str | None]:
     else:
         kind = value
     if kind not in LOGGERS:
-        raise ValueError(f"{KEY}={value!r} is not a logger this runner writes: give one of {list(LOGGERS)} "
+        raise ConfigError(f"{KEY}={value!r} is not a logger this runner writes: give one of {list(LOGGERS)} "
                          "(or {class_name: WandbLogWriter, project_name: ...})")
     return kind, project
 

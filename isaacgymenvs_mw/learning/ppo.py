@@ -22,6 +22,8 @@ import torch
 from rsl_rl.algorithms import PPO
 from rsl_rl.storage import RolloutStorage
 
+from isaacgymenvs_mw.utils.errors import ConfigError
+
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
 EAGER_UPDATES_BEFORE_CAPTURE = 1
 
@@ -43,12 +45,12 @@ class SyncFreePPO(PPO):
         super().__init__(*args, **kwargs)
         unsupported = [key for key, used in (("rnd_cfg", self.rnd), ("symmetry_cfg", self.symmetry)) if used]
         if unsupported:
-            raise ValueError(
+            raise ConfigError(
                 f"train.algorithm.{unsupported[0]} is not supported by SyncFreePPO; "
                 "set train.algorithm.class_name=PPO to use rsl-rl-lib's PPO, which supports it"
             )
         if type(self.optimizer) not in (torch.optim.Adam, torch.optim.AdamW):
-            raise ValueError(
+            raise ConfigError(
                 f"train.algorithm.optimizer={type(self.optimizer).__name__.lower()} is not supported by SyncFreePPO "
                 "(valid: adam, adamw); set train.algorithm.class_name=PPO to use rsl-rl-lib's PPO with it"
             )
@@ -56,7 +58,7 @@ class SyncFreePPO(PPO):
                         if p.requires_grad]
         dtypes = {p.dtype for p in self._params}
         if len(dtypes) != 1:
-            raise ValueError(f"SyncFreePPO needs actor and critic parameters of one dtype, got "
+            raise ConfigError(f"SyncFreePPO needs actor and critic parameters of one dtype, got "
                              f"{sorted(map(str, dtypes))}; set train.algorithm.class_name=PPO to use rsl-rl-lib's PPO")
         # All gradients are views into one flat buffer whose last element carries the mini-batch's KL divergence,
         # so a multi-GPU step needs a single all-reduce and no copies.
@@ -86,12 +88,12 @@ class SyncFreePPO(PPO):
             return not unmet
         if value is True:
             if unmet:
-                raise ValueError(f"train.algorithm.capture_update=True needs {' and '.join(unmet)}; "
+                raise ConfigError(f"train.algorithm.capture_update=True needs {' and '.join(unmet)}; "
                                  "use auto or False")
             return True
         if value is False:
             return False
-        raise ValueError(f"train.algorithm.capture_update={value!r} is not valid; valid: auto, True, False")
+        raise ConfigError(f"train.algorithm.capture_update={value!r} is not valid; valid: auto, True, False")
 
     # ------------------------------------------------------------------ learning rate on the device
 

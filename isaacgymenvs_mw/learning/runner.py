@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import platform
 import time
@@ -24,6 +25,7 @@ from rsl_rl.utils.log_writer import LogWriter
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import check_train_config
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")
 
@@ -32,12 +34,12 @@ def rsl_rl_config(train_cfg: dict) -> dict:
     """Flatten our train YAML (runner/algorithm/actor/critic) into the dict OnPolicyRunner expects."""
     missing = [s for s in TRAIN_SECTIONS if s not in train_cfg]
     if missing:
-        raise ValueError(f"train config lacks section(s) {missing}; expected {list(TRAIN_SECTIONS)}")
+        raise ConfigError(f"train config lacks section(s) {missing}; expected {list(TRAIN_SECTIONS)}")
     check_train_config(train_cfg)
     runner = dict(train_cfg["runner"])
     for key in ("num_steps_per_env", "max_iterations", "save_interval", "obs_groups"):
         if key not in runner:
-            raise ValueError(f"train.runner.{key} is required")
+            raise ConfigError(f"train.runner.{key} is required")
     return {**runner, "algorithm": dict(train_cfg["algorithm"]), "actor": dict(train_cfg["actor"]),
             "critic": dict(train_cfg["critic"])}
 
@@ -110,13 +112,16 @@ class Runner(OnPolicyRunner):
         try:
             for it in range(start_it, last_it):
                 t0 = time.perf_counter()  # the GPU is idle here: the last iteration ended with a host read
+                progress = _FirstCollectProgress(it + 1, steps, t0) if it == start_it and self.is_main else None
                 with torch.inference_mode():
-                    for _ in range(steps):
+                    for step in range(steps):
                         actions = self.alg.act(obs)
                         obs, rewards, dones, extras = env.step(actions.to(env.device))
                         obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                         self.alg.process_env_step(obs, rewards, dones, extras)
                         self._stop_if_requested()
+                        if progress is not None:
+                            progress.step_done(step + 1)
                     self.alg.compute_returns(obs)
                 t1 = time.perf_counter()
                 if on_cuda:
@@ -196,12 +201,11 @@ class Runner(OnPolicyRunner):
         else:  # a host read, but only on iterations where no episode ended
             longest = int(env.episode_length_buf.max())
             episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
-        # Time left at this run's mean iteration time so far (the first iteration's compilation included).
-        eta_s = self.train_time / max(len(self.history), 1) * (last_it - it - 1)
+        eta = _duration(steady_iteration_s(self.history) * (last_it - it - 1)) if it + 1 < last_it else "0s"
         print(
             f"[it {it + 1:>5}/{last_it}] steps {self.total_env_steps:>11,} | {fps:>10,.0f} steps/s | "
             f"{episodes} | value_loss {losses.get('value', float('nan')):8.4f} | "
-            f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s | ETA {_duration(eta_s)}",
+            f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s | ETA {eta}",
             flush=True,
         )
 
@@ -214,8 +218,38 @@ class Runner(OnPolicyRunner):
         return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
 
 
+class _FirstCollectProgress:
+    """A line every ``every_s`` seconds while the first iteration collects, so that a run with many worlds on a CPU
+    (or a long first compile) does not look hung. Host clocks only: no GPU sync, and silent when steps are fast."""
+
+    def __init__(self, iteration: int, steps: int, started: float, every_s: float = 15.0):
+        self.iteration, self.steps, self.started, self.every_s = iteration, steps, started, every_s
+        self.last_print = started
+
+    def step_done(self, step: int) -> None:
+        now = time.perf_counter()
+        if now - self.last_print < self.every_s or step == self.steps:
+            return
+        self.last_print = now
+        spent = now - self.started
+        left = spent / step * (self.steps - step)
+        print(f"[it {self.iteration:>5}] collecting: env step {step}/{self.steps} after {_duration(spent)}, "
+              f"about {_duration(left)} more before the update", flush=True)
+
+
+def steady_iteration_s(history: list[dict]) -> float:
+    """Mean seconds per iteration without this run's first one (Warp and torch.compile compile during it, which
+    made a Go1Terrain ETA read 8h10m), or NaN while only the first has run."""
+    steady = history[1:]
+    if not steady:
+        return float("nan")
+    return sum(r["collect_s"] + r["learn_s"] for r in steady) / len(steady)
+
+
 def _duration(seconds: float) -> str:
-    """Seconds as 42s, 3m05s or 1h02m."""
+    """Seconds as 42s, 3m05s or 1h02m ('--' when not known yet)."""
+    if not math.isfinite(seconds):
+        return "--"
     s = int(round(seconds))
     if s < 60:
         return f"{s}s"

@@ -22,6 +22,7 @@ import numpy as np
 
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
 from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
+from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 
 DRIVE_MODES = ("none", "effort", "position")
 
@@ -105,7 +106,7 @@ def load_spec(asset_file: Path, collapse_fixed_joints: bool = True) -> mujoco.Mj
     """Parse a URDF or MJCF file; fail with the path when it does not exist."""
     asset_file = Path(asset_file)
     if not asset_file.is_file():
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"Asset file not found: '{asset_file}'. Set env.asset.assetRoot / env.asset.assetFileName in the task "
             "YAML to an existing URDF or MJCF file."
         )
@@ -142,7 +143,7 @@ def match_body_names(patterns: Sequence[str] | str | None, body_names: Sequence[
     for pattern in patterns or []:
         hits = [n for n in body_names if re.fullmatch(pattern, n)]
         if not hits:
-            raise ValueError(f"{key}: '{pattern}' matches no body; bodies: {list(body_names)}")
+            raise ConfigError(f"{key}: '{pattern}' matches no body; bodies: {list(body_names)}")
         out += [h for h in hits if h not in out]
     return out
 
@@ -183,10 +184,10 @@ def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> lis
     try:
         hits = [i for i, name in enumerate(names) if re.search(pattern, name)]
     except re.error as err:
-        raise ValueError(f"{key}: '{pattern}' is not a valid regular expression ({err})") from None
+        raise ConfigError(f"{key}: '{pattern}' is not a valid regular expression ({err})") from None
     if not hits:
         singular = {"bodies": "body"}.get(kind, kind[:-1])
-        raise ValueError(f"{key}: '{pattern}' matches no {singular}. {kind.capitalize()} of this asset: {list(names)}")
+        raise ConfigError(f"{key}: '{pattern}' matches no {singular}. {kind.capitalize()} of this asset: {list(names)}")
     return hits
 
 
@@ -197,7 +198,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     root = _root_body(spec)
     has_free_root = _check_joint_types(spec, request.asset_file, root)
     if has_free_root and request.fix_base:
-        raise ValueError(
+        raise ConfigError(
             f"{request.asset_file}: the root body '{root.name}' has a free joint (a floating base) but "
             "env.asset.fixBaseLink is True; set fixBaseLink: False, or remove the free joint to weld it to the world"
         )
@@ -242,7 +243,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     for name, drive in request.drives.items():
         _check_joint(spec, name, "env.control.driveMode")
         if drive.mode != "none" and name in owned:
-            raise ValueError(
+            raise ConfigError(
                 f"env.control.driveMode: joint '{name}' is already driven by the asset's actuator '{owned[name]}' "
                 f"({request.asset_file}); the asset's actuators are used as written, so remove the YAML drive for "
                 "this joint (defaultDriveMode applies only to joints the asset does not actuate)"
@@ -254,7 +255,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
 
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
-            raise ValueError(f"contact body '{body_name}' is not a body of {request.asset_file}")
+            raise ConfigError(f"contact body '{body_name}' is not a body of {request.asset_file}")
         spec.add_sensor(
             name=f"contact_{body_name}",
             type=mujoco.mjtSensor.mjSENS_CONTACT,
@@ -318,7 +319,7 @@ def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dic
 
 def _check_joint(spec: mujoco.MjSpec, name: str, key: str) -> None:
     if spec.joint(name) is None:
-        raise ValueError(f"{key}: '{name}' is not a joint of the asset; joints: {movable_joint_names(spec)}")
+        raise ConfigError(f"{key}: '{name}' is not a joint of the asset; joints: {movable_joint_names(spec)}")
 
 
 def _check_joint_types(spec: mujoco.MjSpec, asset_file: Path, root: mujoco.MjsBody) -> bool:
@@ -330,13 +331,13 @@ def _check_joint_types(spec: mujoco.MjSpec, asset_file: Path, root: mujoco.MjsBo
         if j.type == mujoco.mjtJoint.mjJNT_FREE and j.parent.name == root.name and not free_root:
             free_root = True
             continue
-        raise ValueError(
+        raise ConfigError(
             f"{asset_file}: joint '{j.name}' is a {j.type.name}; only revolute/continuous/prismatic (hinge/slide) "
             "joints are supported, plus one free joint on the root body (the floating base; without it the "
             "framework adds one when env.asset.fixBaseLink is False)"
         )
     if free_root and next(iter(root.joints)).type != mujoco.mjtJoint.mjJNT_FREE:
-        raise ValueError(f"{asset_file}: the free joint of root body '{root.name}' must be its first joint")
+        raise ConfigError(f"{asset_file}: the free joint of root body '{root.name}' must be its first joint")
     return free_root
 
 
@@ -344,7 +345,7 @@ def _root_body(spec: mujoco.MjSpec) -> mujoco.MjsBody:
     children = [b for b in spec.bodies if b.parent is not None and b.parent.name == spec.worldbody.name]
     children = [b for b in children if b.name != spec.worldbody.name]
     if len(children) != 1:
-        raise ValueError(f"expected one root link under the world, found {[b.name for b in children]}")
+        raise ConfigError(f"expected one root link under the world, found {[b.name for b in children]}")
     return children[0]
 
 
@@ -366,12 +367,12 @@ def _set_collision_filter(spec: mujoco.MjSpec, self_collisions: bool, keep: bool
 
 def _add_actuator(spec: mujoco.MjSpec, joint_name: str, drive: JointDrive) -> None:
     if drive.mode not in DRIVE_MODES:
-        raise ValueError(f"drive mode '{drive.mode}' of joint '{joint_name}' is not one of {DRIVE_MODES}")
+        raise ConfigError(f"drive mode '{drive.mode}' of joint '{joint_name}' is not one of {DRIVE_MODES}")
     if drive.mode == "none":
         return
     joint = spec.joint(joint_name)
     if drive.mode == "effort" and drive.torque_limit is None and not _force_capped(joint):
-        raise ValueError(
+        raise ConfigError(
             f"env.control.driveMode: joint '{joint_name}' has an effort drive but no torque cap: the asset gives "
             "none (URDF <limit effort>, MJCF actuatorfrcrange); set env.control.effortLimit: {" + joint_name
             + ": <N m>}"
@@ -401,7 +402,7 @@ def _override_actuators(spec: mujoco.MjSpec, patterns: Mapping[str, object], key
         hits = [a for a in actuators if _selects(pattern, a.name) or _selects(pattern, a.target)]
         if not hits:
             listing = [f"{a.name} -> {a.target}" for a in actuators]
-            raise ValueError(
+            raise ConfigError(
                 f"{key}: '{pattern}' matches no actuator, by actuator name or by the joint it drives; "
                 f"actuators of this model (name -> joint): {listing}"
             )
@@ -417,7 +418,7 @@ def _set_gear(act: mujoco.MjsActuator, value: object, key: str) -> None:
     try:
         gear = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{key}={value!r} is invalid: give a number (the actuator's gear ratio)") from None
+        raise ConfigError(f"{key}={value!r} is invalid: give a number (the actuator's gear ratio)") from None
     act.gear = [gear] + [0.0] * 5
 
 
@@ -425,9 +426,9 @@ def _set_ctrl_range(act: mujoco.MjsActuator, value: object, key: str) -> None:
     try:
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
-        raise ValueError(f"{key}={value!r} is invalid: give [low, high]") from None
+        raise ConfigError(f"{key}={value!r} is invalid: give [low, high]") from None
     if not lo < hi:
-        raise ValueError(f"{key}={value!r} is invalid: low must be < high")
+        raise ConfigError(f"{key}={value!r} is invalid: low must be < high")
     act.ctrlrange = [lo, hi]
     act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
@@ -435,9 +436,9 @@ def _set_ctrl_range(act: mujoco.MjsActuator, value: object, key: str) -> None:
 def _apply_options(spec: mujoco.MjSpec, o: SolverOptions) -> None:
     for key, table in (("integrator", _INTEGRATORS), ("solver", _SOLVERS), ("cone", _CONES)):
         if getattr(o, key) not in table:
-            raise ValueError(f"sim.{key}: '{getattr(o, key)}' is not one of {sorted(table)}")
+            raise ConfigError(f"sim.{key}: '{getattr(o, key)}' is not one of {sorted(table)}")
     if o.dt <= 0:
-        raise ValueError(f"sim.dt must be > 0, got {o.dt}")
+        raise ConfigError(f"sim.dt must be > 0, got {o.dt}")
     spec.option.timestep = float(o.dt)
     spec.option.gravity = np.asarray(o.gravity, dtype=float)
     spec.option.integrator = _INTEGRATORS[o.integrator]
@@ -447,11 +448,11 @@ def _apply_options(spec: mujoco.MjSpec, o: SolverOptions) -> None:
     spec.option.ls_iterations = int(o.ls_iterations)
     if o.ccd_iterations is not None:
         if o.ccd_iterations < 1:
-            raise ValueError(f"sim.ccd_iterations must be >= 1, got {o.ccd_iterations}")
+            raise ConfigError(f"sim.ccd_iterations must be >= 1, got {o.ccd_iterations}")
         spec.option.ccd_iterations = int(o.ccd_iterations)
     if o.ccd_tolerance is not None:
         if o.ccd_tolerance <= 0:
-            raise ValueError(f"sim.ccd_tolerance must be > 0, got {o.ccd_tolerance}")
+            raise ConfigError(f"sim.ccd_tolerance must be > 0, got {o.ccd_tolerance}")
         spec.option.ccd_tolerance = float(o.ccd_tolerance)
     spec.option.impratio = float(o.impratio)
     if not o.enable_contacts:

@@ -21,6 +21,7 @@ import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
+from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
 
 # A world with any joint speed above this (m/s or rad/s) has diverged and is reset as a NaN one is. Such speeds are
@@ -82,9 +83,9 @@ class Simulator:
         deterministic: bool = False,
     ) -> None:
         if num_worlds < 1:
-            raise ValueError(f"numEnvs must be >= 1, got {num_worlds}")
+            raise ConfigError(f"numEnvs must be >= 1, got {num_worlds}")
         if substeps < 1:
-            raise ValueError(f"controlFrequencyInv must be >= 1, got {substeps}")
+            raise ConfigError(f"controlFrequencyInv must be >= 1, got {substeps}")
         self.mj_model = mj_model
         self.num_worlds = int(num_worlds)
         self.substeps = int(substeps)

@@ -25,6 +25,8 @@ from typing import Mapping
 
 import numpy as np
 
+from isaacgymenvs_mw.utils.errors import ConfigError
+
 TERRAIN_TYPES = ("smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete_obstacles", "stepping_stones")
 GROUND_TYPES = ("plane", "heightfield")
 
@@ -74,39 +76,39 @@ def parse_terrain_config(raw: Mapping | None) -> TerrainConfig:
     known = set(TerrainConfig.__dataclass_fields__)
     unknown = sorted(set(raw) - known)
     if unknown:
-        raise ValueError(f"env.terrain: unknown key(s) {unknown}; valid keys: {sorted(known)}")
+        raise ConfigError(f"env.terrain: unknown key(s) {unknown}; valid keys: {sorted(known)}")
     cfg = TerrainConfig(**raw)
     if cfg.type not in GROUND_TYPES:
-        raise ValueError(f"env.terrain.type: '{cfg.type}' is not one of {list(GROUND_TYPES)}")
+        raise ConfigError(f"env.terrain.type: '{cfg.type}' is not one of {list(GROUND_TYPES)}")
     props = dict(DEFAULT_PROPORTIONS if cfg.proportions is None else cfg.proportions)
     bad = sorted(k for k in props if k not in TERRAIN_TYPES)
     if bad:
-        raise ValueError(f"env.terrain.proportions: unknown terrain type(s) {bad}; valid types: {list(TERRAIN_TYPES)}")
+        raise ConfigError(f"env.terrain.proportions: unknown terrain type(s) {bad}; valid types: {list(TERRAIN_TYPES)}")
     if any(float(v) < 0 for v in props.values()) or not np.isclose(sum(float(v) for v in props.values()), 1.0):
-        raise ValueError(f"env.terrain.proportions={props} must be >= 0 and sum to 1 (they sum to "
+        raise ConfigError(f"env.terrain.proportions={props} must be >= 0 and sum to 1 (they sum to "
                          f"{sum(float(v) for v in props.values()):.4g}); types: {list(TERRAIN_TYPES)}")
     cfg.proportions = {t: float(props.get(t, 0.0)) for t in TERRAIN_TYPES}
     for key in ("mapLength", "mapWidth", "horizontalScale", "platformSize", "stepWidth"):
         if float(getattr(cfg, key)) <= 0:
-            raise ValueError(f"env.terrain.{key}={getattr(cfg, key)} must be > 0")
+            raise ConfigError(f"env.terrain.{key}={getattr(cfg, key)} must be > 0")
     for key in ("numLevels", "numTerrains"):
         if int(getattr(cfg, key)) < 1:
-            raise ValueError(f"env.terrain.{key}={getattr(cfg, key)} must be >= 1")
+            raise ConfigError(f"env.terrain.{key}={getattr(cfg, key)} must be >= 1")
     for key in ("stepHeight", "obstacleHeight", "obstacleSize", "stoneSize", "stoneGap"):
         value = getattr(cfg, key)
         ordered = key not in ("stoneSize",)  # stones shrink with difficulty
         if len(value) != 2 or (ordered and float(value[0]) > float(value[1])) or min(map(float, value)) < 0:
             rule = "low <= high" if ordered else "both >= 0"
-            raise ValueError(f"env.terrain.{key}={list(value)} is invalid: give [at difficulty 0, at 1] ({rule})")
+            raise ConfigError(f"env.terrain.{key}={list(value)} is invalid: give [at difficulty 0, at 1] ({rule})")
         setattr(cfg, key, (float(value[0]), float(value[1])))
     if cfg.platformSize > min(cfg.mapLength, cfg.mapWidth):
-        raise ValueError(f"env.terrain.platformSize={cfg.platformSize} is larger than the cell "
+        raise ConfigError(f"env.terrain.platformSize={cfg.platformSize} is larger than the cell "
                          f"(mapLength={cfg.mapLength}, mapWidth={cfg.mapWidth})")
     if cfg.borderSize < 0:
-        raise ValueError(f"env.terrain.borderSize={cfg.borderSize} must be >= 0")
+        raise ConfigError(f"env.terrain.borderSize={cfg.borderSize} must be >= 0")
     px, py, b, total = cfg.sample_counts()
     if cfg.type == "heightfield" and total > cfg.maxHeightfieldSamples:
-        raise ValueError(
+        raise ConfigError(
             f"env.terrain: the heightfield would have {total:,} samples ({cfg.numLevels * px + 2 * b} x "
             f"{cfg.numTerrains * py + 2 * b}), more than "
             f"env.terrain.maxHeightfieldSamples={cfg.maxHeightfieldSamples:,}"
@@ -239,7 +241,7 @@ def heightfield_grid(model) -> dict:
     parts = ground_geoms(model)
     fields = [g for g in parts if int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_HFIELD)]
     if not fields:
-        raise ValueError("the model has no ground heightfield (env.terrain.type is not heightfield?)")
+        raise ConfigError("the model has no ground heightfield (env.terrain.type is not heightfield?)")
     half = {g: (model.hfield_size[model.geom_dataid[g]] if g in fields else model.geom_size[g])[:2] for g in parts}
     spacing = float(2.0 * half[fields[0]][0] / (model.hfield_ncol[model.geom_dataid[fields[0]]] - 1))
     # The grid's samples are the heightfields'; the border boxes (a hair wider than their samples) extend it by

@@ -24,6 +24,7 @@ import numpy as np
 
 from isaacgymenvs_mw.sim.simulator import Simulator
 from isaacgymenvs_mw.sim.terrain import ground_geoms
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 _BODY_RGBA = np.array([0.85, 0.55, 0.25, 1.0])
 _GROUND_RGBA = np.array([0.22, 0.27, 0.32, 1.0])
@@ -38,6 +39,7 @@ AUTO = "auto"  # track_body default: the floating base's body when there is one,
 # an unproven backend, and remembers the verdict.
 _PROBE = """
 import mujoco
+from isaacgymenvs_mw.utils.errors import ConfigError
 model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=".1"/></worldbody></mujoco>')
 renderer = mujoco.Renderer(model, height=8, width=8)
 renderer.render()
@@ -111,7 +113,7 @@ class VideoRecorder:
         world: int = 0,
     ) -> None:
         if int(every) < 1 or int(length) < 1:
-            raise ValueError(f"capture_video_freq and capture_video_len must be >= 1, got {every} and {length}")
+            raise ConfigError(f"capture_video_freq and capture_video_len must be >= 1, got {every} and {length}")
         if width < 2 or height < 2 or width % 2 or height % 2:
             raise ValueError(f"video width and height must be even numbers >= 2, got {width}x{height}")
         if not (fps > 0 and math.isfinite(fps)):

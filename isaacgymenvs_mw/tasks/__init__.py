@@ -18,6 +18,7 @@ from isaacgymenvs_mw.tasks.cartpole import Cartpole
 from isaacgymenvs_mw.tasks.g1 import G1
 from isaacgymenvs_mw.tasks.go1 import Go1
 from isaacgymenvs_mw.tasks.humanoid import Humanoid
+from isaacgymenvs_mw.utils.errors import UnknownNameError
 
 isaacgym_task_map: dict[str, type[VecTask]] = {
     "Ant": Ant,
@@ -46,7 +47,8 @@ def register_task(name: str, task_class: type[VecTask] | None = None):
 
 def get_task_class(name: str) -> type[VecTask]:
     if name not in isaacgym_task_map:
-        raise KeyError(f"Unknown task '{name}'. Available tasks: {sorted(isaacgym_task_map)}")
+        raise UnknownNameError(f"task.name={name!r} is not a registered task: give one of {sorted(isaacgym_task_map)}, "
+                               "or import the module that registers it with task_module=<module>")
     return isaacgym_task_map[name]
 
 

@@ -6,6 +6,8 @@ import re
 
 import torch
 
+from isaacgymenvs_mw.utils.errors import ConfigError
+
 
 def resolve_device(device: str, key: str = "sim_device") -> str:
     """Turn a user device string into 'cpu' or 'cuda:N', or fail naming the key and the valid choices."""
@@ -18,10 +20,10 @@ def resolve_device(device: str, key: str = "sim_device") -> str:
         return "cpu"
     match = re.fullmatch(r"(cuda|gpu)(?::(\d+))?", device)
     if match is None:
-        raise ValueError(f"{key}='{device}' is not a device string; valid choices here: {valid}")
+        raise ConfigError(f"{key}='{device}' is not a device string; valid choices here: {valid}")
     index = int(match.group(2) or 0)
     if index >= n_gpu:
-        raise ValueError(
+        raise ConfigError(
             f"{key}='{device}' asks for a CUDA GPU but this machine has {n_gpu}; valid choices here: {valid}"
         )
     return f"cuda:{index}"
@@ -30,7 +32,7 @@ def resolve_device(device: str, key: str = "sim_device") -> str:
 def check_device_pair(sim_device: str, rl_device: str) -> None:
     """The simulator and the learner may share a GPU, or the learner may sit on the CPU; two GPUs are not supported."""
     if sim_device.startswith("cuda") and rl_device.startswith("cuda") and sim_device != rl_device:
-        raise ValueError(
+        raise ConfigError(
             f"sim_device='{sim_device}' and rl_device='{rl_device}' are different GPUs, which is not supported: "
             "use the same cuda:N for both (or rl_device=cpu)"
         )

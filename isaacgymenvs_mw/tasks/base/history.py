@@ -26,6 +26,7 @@ import torch
 
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout
 from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 GROUPS = ("policy", "critic")
 
@@ -45,25 +46,25 @@ def parse_history(env: dict) -> dict[str, HistorySpec]:
     if section in (None, {}):
         return {}
     if not isinstance(section, dict):
-        raise ValueError(f"env.history={section!r} is invalid: give a mapping with keys {list(GROUPS)}")
+        raise ConfigError(f"env.history={section!r} is invalid: give a mapping with keys {list(GROUPS)}")
     unknown = [k for k in section if k not in GROUPS]
     if unknown:
-        raise ValueError(f"env.history: unknown group(s) {unknown}; valid groups: {list(GROUPS)}")
+        raise ConfigError(f"env.history: unknown group(s) {unknown}; valid groups: {list(GROUPS)}")
     out = {}
     for group, cfg in section.items():
         key = f"env.history.{group}"
         if cfg is None:
             continue
         if not isinstance(cfg, dict):
-            raise ValueError(f"{key}={cfg!r} is invalid: give a mapping with keys ['length', 'terms']")
+            raise ConfigError(f"{key}={cfg!r} is invalid: give a mapping with keys ['length', 'terms']")
         bad = [k for k in cfg if k not in ("length", "terms")]
         if bad:
-            raise ValueError(f"{key}: unknown key(s) {bad}; valid keys: ['length', 'terms']")
+            raise ConfigError(f"{key}: unknown key(s) {bad}; valid keys: ['length', 'terms']")
         length = whole_number(cfg.get("length", 1), f"{key}.length", 1)
         terms = cfg.get("terms")
         if terms is not None:
             if isinstance(terms, str) or not all(isinstance(t, str) for t in terms) or len(terms) == 0:
-                raise ValueError(f"{key}.terms={terms!r} is invalid: give a non-empty list of observation term "
+                raise ConfigError(f"{key}.terms={terms!r} is invalid: give a non-empty list of observation term "
                                  "names, or leave it out to stack the whole vector")
             terms = tuple(terms)
         if length > 1:
@@ -89,7 +90,7 @@ class ObsHistory:
         if spec.terms is None:
             columns = torch.arange(self.frame_size)
         elif layout is None:
-            raise ValueError(f"{spec.key}.terms={list(spec.terms)}: this task declares no observation terms "
+            raise ConfigError(f"{spec.key}.terms={list(spec.terms)}: this task declares no observation terms "
                              "(observation_terms()/state_terms()), so only the whole vector can be stacked; "
                              f"leave out {spec.key}.terms")
         else:

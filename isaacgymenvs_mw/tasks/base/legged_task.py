@@ -21,12 +21,20 @@ import math
 
 import torch
 
-from isaacgymenvs_mw.sim import (ModelRequest, generate_terrain, ground_geoms, heightfield_grid, load_spec,
-                                 match_joint_values, parse_terrain_config)
+from isaacgymenvs_mw.sim import (
+    ModelRequest,
+    generate_terrain,
+    ground_geoms,
+    heightfield_grid,
+    load_spec,
+    match_joint_values,
+    parse_terrain_config,
+)
 from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
 
@@ -63,7 +71,7 @@ class LeggedTask(VecTask):
         request.contact_bodies = sensed
         if self.terrain is not None:
             if request.ground is None:
-                raise ValueError("env.terrain.type: heightfield replaces the ground plane and takes its friction: set "
+                raise ConfigError("env.terrain.type: heightfield replaces the ground plane and takes its friction: set "
                                  "env.plane.enabled: True (env.plane.friction is the terrain's friction)")
             request.terrain = self.terrain
         return request
@@ -89,15 +97,15 @@ class LeggedTask(VecTask):
         self.terrain_settings = task_keys
         top = cfg.numLevels - 1
         if not 0 <= int(task_keys["maxInitLevel"]) <= top:
-            raise ValueError(f"env.terrain.maxInitLevel={task_keys['maxInitLevel']} must be in [0, {top}] "
+            raise ConfigError(f"env.terrain.maxInitLevel={task_keys['maxInitLevel']} must be in [0, {top}] "
                              f"(numLevels={cfg.numLevels})")
         half = 0.5 * cfg.platformSize
         if not 0.0 <= float(task_keys["spawnJitter"]) < half:
-            raise ValueError(f"env.terrain.spawnJitter={task_keys['spawnJitter']} must be in [0, platformSize/2 = "
+            raise ConfigError(f"env.terrain.spawnJitter={task_keys['spawnJitter']} must be in [0, platformSize/2 = "
                              f"{half}): robots spawn on the cell's flat platform")
         for key in ("scanPointsX", "scanPointsY"):
             if int(task_keys[key]) < 1:
-                raise ValueError(f"env.terrain.{key}={task_keys[key]} must be >= 1")
+                raise ConfigError(f"env.terrain.{key}={task_keys[key]} must be >= 1")
 
     def _init_terrain_state(self) -> None:
         """Per-env cells, curriculum levels, the device height map and the height-scan points."""
@@ -152,11 +160,11 @@ class LeggedTask(VecTask):
     def _init_joint_settings(self, env: dict) -> None:
         names = self.sim.dof_names
         if len(names) != self.num_actions:
-            raise ValueError(f"env.numActions={self.num_actions} but the asset has {len(names)} joints: {names}")
+            raise ConfigError(f"env.numActions={self.num_actions} but the asset has {len(names)} joints: {names}")
         angles = match_joint_values(env["defaultJointAngles"], names, "env.defaultJointAngles")
         missing = [n for n in names if n not in angles]
         if missing:
-            raise ValueError(f"env.defaultJointAngles gives no angle for joints {missing}; joints: {names}")
+            raise ConfigError(f"env.defaultJointAngles gives no angle for joints {missing}; joints: {names}")
         self.default_dof_pos = torch.tensor([float(angles[n]) for n in names], device=self.device)
         self.action_scale = float(env["control"]["actionScale"])
         limits = torch.tensor(self.sim.mj_model.jnt_range[-len(names):], device=self.device, dtype=torch.float)
@@ -234,7 +242,8 @@ class LeggedTask(VecTask):
         scales = dict(rew["scales"])
         unknown = [k for k in scales if k not in available]
         if unknown:
-            raise ValueError(f"env.rewards.scales: unknown reward term(s) {unknown}; available terms: {available}")
+            raise ConfigError(f"env.rewards.scales.{unknown[0]}: unknown reward term (all unknown: {unknown}); "
+                              f"available terms: {available}")
         self.tracking_sigma = float(rew.get("trackingSigma", 0.25))
         self.only_positive_rewards = bool(rew.get("onlyPositiveRewards", True))
         self.base_height_target = float(rew.get("baseHeightTarget", 0.5))
@@ -245,7 +254,7 @@ class LeggedTask(VecTask):
         def joint_mask(key: str, term: str) -> torch.Tensor:
             patterns = rew.get(key)
             if float(scales.get(term, 0.0)) != 0.0 and not patterns:
-                raise ValueError(f"env.rewards.scales.{term} is not 0 but env.rewards.{key} names no joints: give a "
+                raise ConfigError(f"env.rewards.scales.{term} is not 0 but env.rewards.{key} names no joints: give a "
                                  f"list of joint names or regular expressions (joints: {names})")
             picked = match_joint_values({p: True for p in patterns or []}, names, f"env.rewards.{key}")
             return torch.tensor([n in picked for n in names], device=self.device, dtype=torch.float)
@@ -278,11 +287,11 @@ class LeggedTask(VecTask):
         try:
             start, steps = float(cfg["start"]), cfg["steps"]
         except (TypeError, ValueError):
-            raise ValueError(f"{key}.start must be a number in (0, 1], got {cfg['start']!r}") from None
+            raise ConfigError(f"{key}.start must be a number in (0, 1], got {cfg['start']!r}") from None
         if not 0.0 < start <= 1.0:
-            raise ValueError(f"{key}.start must be in (0, 1] (the penalties' first scale factor), got {start}")
+            raise ConfigError(f"{key}.start must be in (0, 1] (the penalties' first scale factor), got {start}")
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-            raise ValueError(f"{key}.steps must be a whole number >= 1 (env steps per env), got {steps!r}")
+            raise ConfigError(f"{key}.steps must be a whole number >= 1 (env steps per env), got {steps!r}")
         self._penalty_curriculum = (start, float(steps))
         self._penalty_terms = (self.reward_weights < 0.0).float() * self._clamped_terms  # termination aside
 
@@ -477,9 +486,9 @@ class LeggedTask(VecTask):
         if (not isinstance(rng, (list, tuple)) or len(rng) != 2
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in rng)
                 or not -math.pi - 1e-3 <= rng[0] <= rng[1] <= math.pi + 1e-3):
-            raise ValueError(f"{key}.range must be [low, high] in radians with -pi <= low <= high <= pi, got {rng!r}")
+            raise ConfigError(f"{key}.range must be [low, high] in radians with -pi <= low <= high <= pi, got {rng!r}")
         if isinstance(stiffness, bool) or not isinstance(stiffness, (int, float)) or not stiffness > 0:
-            raise ValueError(f"{key}.stiffness must be a number > 0 (yaw rate per radian of heading error, 1/s), "
+            raise ConfigError(f"{key}.stiffness must be a number > 0 (yaw rate per radian of heading error, 1/s), "
                              f"got {stiffness!r}")
         self.heading_range = (float(rng[0]), float(rng[1]))
         self.heading_stiffness = float(stiffness)
@@ -629,4 +638,4 @@ def _body_names(spec) -> list[str]:
 def _require_keys(cfg, key: str, names: tuple[str, ...]) -> None:
     """A YAML option given as a mapping must hold exactly ``names``: a missing or misspelt one is an error."""
     if not hasattr(cfg, "keys") or set(cfg.keys()) != set(names):
-        raise ValueError(f"{key} must be a mapping with exactly the keys {' and '.join(names)}, got {cfg!r}")
+        raise ConfigError(f"{key} must be a mapping with exactly the keys {' and '.join(names)}, got {cfg!r}")

@@ -28,6 +28,7 @@ import torch
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
 # env keys every locomotion task YAML sets (IsaacGymEnvs' names where it has them).
@@ -53,7 +54,7 @@ class LocomotionTask(VecTask):
         env = cfg["env"]
         missing = [k for k in _SCALAR_KEYS + ("episodeLength", "target", "footContactSensors") if k not in env]
         if missing:
-            raise ValueError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
+            raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
         self.k = {key: float(env[key]) for key in _SCALAR_KEYS}
         self.max_episode_length = whole_number(env["episodeLength"], "env.episodeLength", 2)
         self.record_eval_metrics = False  # evaluate() turns it on: extras["eval_metrics"] gets the forward speed
@@ -69,15 +70,15 @@ class LocomotionTask(VecTask):
         """Actuator i drives one joint; limits, motor strengths and the reset pose per joint."""
         sim, name = self.sim, type(self).__name__
         if not sim.floating_base:
-            raise ValueError(f"{name}: the robot needs a floating base: set env.asset.fixBaseLink: False")
+            raise ConfigError(f"{name}: the robot needs a floating base: set env.asset.fixBaseLink: False")
         dofs, joints = sim.dof_names, sim.actuator_joints
         not_motors = [a for a, j in zip(sim.actuator_names, joints) if j is None]
         if not_motors:
-            raise ValueError(f"{name}: actuators {not_motors} do not drive a joint; each action is one joint's motor")
+            raise ConfigError(f"{name}: actuators {not_motors} do not drive a joint; each action is one joint's motor")
         undriven = [d for d in dofs if d not in joints]
         twice = sorted({j for j in joints if joints.count(j) > 1})
         if undriven or twice:
-            raise ValueError(
+            raise ConfigError(
                 f"{name}: every joint needs exactly one motor in the asset's <actuator> section; joints without one: "
                 f"{undriven}, joints with several: {twice} (actuator -> joint: "
                 f"{dict(zip(sim.actuator_names, joints))})"
@@ -86,7 +87,7 @@ class LocomotionTask(VecTask):
         joint_ids = [m.joint(d).id for d in dofs]
         unlimited = [d for d, j in zip(dofs, joint_ids) if not m.jnt_limited[j]]
         if unlimited:
-            raise ValueError(f"{name}: joints {unlimited} have no range; the observation scales joint positions "
+            raise ConfigError(f"{name}: joints {unlimited} have no range; the observation scales joint positions "
                              "to [-1, 1] by their limits, so give each joint a range in the MJCF")
         limits = torch.tensor(m.jnt_range[joint_ids], device=dev, dtype=torch.float)
         self.dof_lower, self.dof_upper = limits[:, 0], limits[:, 1]
@@ -105,11 +106,11 @@ class LocomotionTask(VecTask):
         columns = []
         for sensor in sensors:
             if sensor not in names:
-                raise ValueError(f"env.footContactSensors: '{sensor}' is not a sensor of the asset; its sensors: "
+                raise ConfigError(f"env.footContactSensors: '{sensor}' is not a sensor of the asset; its sensors: "
                                  f"{names} (declare <contact body1=... data=\"force torque\"> sensors in the MJCF)")
             s = m.sensor(sensor)
             if int(s.dim[0]) != self.FOOT_SENSOR_DIM:
-                raise ValueError(f"env.footContactSensors: sensor '{sensor}' gives {int(s.dim[0])} values, the task "
+                raise ConfigError(f"env.footContactSensors: sensor '{sensor}' gives {int(s.dim[0])} values, the task "
                                  f"reads {self.FOOT_SENSOR_DIM} (force and torque: data=\"force torque\")")
             columns += range(int(s.adr[0]), int(s.adr[0]) + self.FOOT_SENSOR_DIM)
         self.num_feet = len(sensors)
@@ -119,7 +120,7 @@ class LocomotionTask(VecTask):
         n, dev = self.num_envs, self.device
         target = [float(v) for v in env["target"]]
         if len(target) != 3:
-            raise ValueError(f"env.target={target} is invalid: give [x, y, z] (m)")
+            raise ConfigError(f"env.target={target} is invalid: give [x, y, z] (m)")
         self.targets = torch.tensor(target, device=dev).repeat(n, 1)
         qpos0 = torch.tensor(self.sim.mj_model.qpos0[:7], device=dev, dtype=torch.float)
         self.start_pos, self.start_quat = qpos0[:3], qpos0[3:7]  # env.baseInitState, compiled into the model

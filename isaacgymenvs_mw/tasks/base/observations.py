@@ -13,6 +13,8 @@ from typing import Sequence
 
 import torch
 
+from isaacgymenvs_mw.utils.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class ObsTerm:
@@ -39,10 +41,10 @@ class ObsLayout:
         names = [t.name for t in terms]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
-            raise ValueError(f"observation terms {duplicates} appear more than once; term names must be unique")
+            raise ConfigError(f"observation terms {duplicates} appear more than once; term names must be unique")
         bad = [t.name for t in terms if int(t.size) < 1]
         if bad:
-            raise ValueError(f"observation terms {bad} have size < 1")
+            raise ConfigError(f"observation terms {bad} have size < 1")
         self.terms = tuple(terms)
         self.slices: dict[str, slice] = {}
         start = 0
@@ -59,7 +61,7 @@ class ObsLayout:
         """Fail, naming ``key``, when the YAML's declared size is not the sum of the terms."""
         if declared != self.size:
             parts = " + ".join(f"{t.name} {t.size}" for t in self.terms)
-            raise ValueError(f"{key}={declared}, but the task observes {self.size} values ({parts}); "
+            raise ConfigError(f"{key}={declared}, but the task observes {self.size} values ({parts}); "
                              f"set {key}: {self.size}")
 
     def noise_scale(self, device: torch.device | str) -> torch.Tensor:
@@ -70,7 +72,7 @@ class ObsLayout:
         """Column indices of the named terms, in the order given; an unknown name fails naming ``key``."""
         unknown = [n for n in names if n not in self.slices]
         if unknown:
-            raise ValueError(f"{key}: unknown observation term(s) {unknown}; terms: {self.names}")
+            raise ConfigError(f"{key}: unknown observation term(s) {unknown}; terms: {self.names}")
         return torch.cat([torch.arange(self.slices[n].start, self.slices[n].stop) for n in names])
 
     def describe(self) -> list[dict]:

@@ -23,6 +23,7 @@ import torch
 
 from isaacgymenvs_mw.sim import InertiaConstants, Simulator, ground_geoms, model_names, name_matches
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 DISTRIBUTIONS = ("uniform", "gaussian", "loguniform")
 OPERATIONS = ("additive", "scaling")
@@ -119,54 +120,54 @@ class Param:
 def _parse_spec(raw: Any, key: str, allowed: tuple[str, ...], operations: tuple[str, ...] = OPERATIONS,
                 default_apply: str = "reset") -> Spec:
     if not isinstance(raw, dict):
-        raise ValueError(f"{key}: expected a mapping with keys {list(allowed)}, got {raw!r}")
+        raise ConfigError(f"{key}: expected a mapping with keys {list(allowed)}, got {raw!r}")
     unknown = sorted(set(raw) - set(allowed))
     if unknown:
-        raise ValueError(f"{key}: unknown key(s) {unknown}; valid keys: {list(allowed)}")
+        raise ConfigError(f"{key}: unknown key(s) {unknown}; valid keys: {list(allowed)}")
     if "range" not in raw:
-        raise ValueError(f"{key}.range is required: [low, high] (uniform, loguniform) or [mean, std] (gaussian)")
+        raise ConfigError(f"{key}.range is required: [low, high] (uniform, loguniform) or [mean, std] (gaussian)")
     try:
         lo, hi = (float(v) for v in raw["range"])
     except (TypeError, ValueError):
-        raise ValueError(f"{key}.range={raw['range']!r} is invalid: give two numbers") from None
+        raise ConfigError(f"{key}.range={raw['range']!r} is invalid: give two numbers") from None
     distribution = str(raw.get("distribution", "uniform"))
     if distribution not in DISTRIBUTIONS:
-        raise ValueError(f"{key}.distribution={distribution!r} is invalid: give one of {list(DISTRIBUTIONS)}")
+        raise ConfigError(f"{key}.distribution={distribution!r} is invalid: give one of {list(DISTRIBUTIONS)}")
     operation = str(raw.get("operation", operations[0]))
     if operation not in operations:
-        raise ValueError(f"{key}.operation={operation!r} is invalid: give one of {list(operations)}")
+        raise ConfigError(f"{key}.operation={operation!r} is invalid: give one of {list(operations)}")
     if distribution == "gaussian" and hi < 0:
-        raise ValueError(f"{key}.range={[lo, hi]}: a gaussian's range is [mean, std]; std must be >= 0")
+        raise ConfigError(f"{key}.range={[lo, hi]}: a gaussian's range is [mean, std]; std must be >= 0")
     if distribution != "gaussian" and lo > hi:
-        raise ValueError(f"{key}.range={[lo, hi]}: low > high")
+        raise ConfigError(f"{key}.range={[lo, hi]}: low > high")
     if distribution == "loguniform" and lo <= 0:
-        raise ValueError(f"{key}.range={[lo, hi]}: a loguniform range must be > 0")
+        raise ConfigError(f"{key}.range={[lo, hi]}: a loguniform range must be > 0")
     schedule = raw.get("schedule")
     steps = 0
     if schedule is not None:
         if schedule not in SCHEDULES:
-            raise ValueError(f"{key}.schedule={schedule!r} is invalid: give one of {list(SCHEDULES)} (or leave out)")
+            raise ConfigError(f"{key}.schedule={schedule!r} is invalid: give one of {list(SCHEDULES)} (or leave out)")
         steps = int(raw.get("schedule_steps", 0))
         if steps < 1:
-            raise ValueError(f"{key}.schedule_steps must be a whole number >= 1 when {key}.schedule is set")
+            raise ConfigError(f"{key}.schedule_steps must be a whole number >= 1 when {key}.schedule is set")
     elif "schedule_steps" in raw:
-        raise ValueError(f"{key}.schedule_steps is set but {key}.schedule is not (linear or constant)")
+        raise ConfigError(f"{key}.schedule_steps is set but {key}.schedule is not (linear or constant)")
     apply = str(raw.get("apply", default_apply))
     if apply not in APPLY:
-        raise ValueError(f"{key}.apply={apply!r} is invalid: give one of {list(APPLY)}")
+        raise ConfigError(f"{key}.apply={apply!r} is invalid: give one of {list(APPLY)}")
     return Spec(key, distribution, operation, lo, hi, schedule, steps, apply)
 
 
 def _interval_steps(raw: dict, key: str, control_dt: float) -> int:
     given = [k for k in ("interval_s", "interval_steps") if k in raw]
     if len(given) != 1:
-        raise ValueError(f"{key}: an interval draw needs exactly one of interval_s (seconds) or interval_steps")
+        raise ConfigError(f"{key}: an interval draw needs exactly one of interval_s (seconds) or interval_steps")
     if given[0] == "interval_s":
         steps = int(round(float(raw["interval_s"]) / control_dt))
     else:
         steps = int(raw["interval_steps"])
     if steps < 1:
-        raise ValueError(f"{key}.{given[0]}={raw[given[0]]} is less than one policy step ({control_dt} s)")
+        raise ConfigError(f"{key}.{given[0]}={raw[given[0]]} is less than one policy step ({control_dt} s)")
     return steps
 
 
@@ -185,7 +186,8 @@ class Randomizer:
         root = "task.randomization_params"
         unknown = sorted(set(params) - set(SECTIONS))
         if unknown:
-            raise ValueError(f"{root}: unknown section(s) {unknown}; valid sections: {list(SECTIONS)}")
+            raise ConfigError(f"{root}.{unknown[0]}: unknown section (all unknown: {unknown}); valid sections: "
+                              f"{list(SECTIONS)}")
         self.root, self.control_dt, self.num_envs, self.device = root, control_dt, num_envs, device
         self.raw = params
         self.obs_noise, self.obs_terms = self._parse_noise("observations", extra=("terms",))
@@ -195,7 +197,7 @@ class Randomizer:
             self.delay_spec = _parse_spec(delay_raw, f"{root}.actions.delay", DRAW_KEYS, operations=("additive",))
             if self.delay_spec.distribution != "uniform" or self.delay_spec.lo < 0 \
                     or self.delay_spec.lo != int(self.delay_spec.lo) or self.delay_spec.hi != int(self.delay_spec.hi):
-                raise ValueError(f"{root}.actions.delay: give range: [low, high] of whole policy steps >= 0 with "
+                raise ConfigError(f"{root}.actions.delay: give range: [low, high] of whole policy steps >= 0 with "
                                  "distribution: uniform (every whole number in the range is equally likely)")
             self._set_interval(self.delay_spec, delay_raw)
         self.push_spec = None
@@ -209,17 +211,17 @@ class Randomizer:
         for name, raw in dict(params.get("sim_params") or {}).items():
             key = f"{root}.sim_params.{name}"
             if name not in SIM_QUANTITIES:
-                raise ValueError(f"{key}: unknown parameter; valid: {list(SIM_QUANTITIES)}")
+                raise ConfigError(f"{key}: unknown parameter; valid: {list(SIM_QUANTITIES)}")
             self._add_entry(raw, key, SIM_QUANTITIES[name])
         for group, quantities in dict(params.get("actor_params") or {}).items():
             if group not in QUANTITIES:
-                raise ValueError(f"{root}.actor_params.{group}: unknown group; valid: {list(QUANTITIES)}")
+                raise ConfigError(f"{root}.actor_params.{group}: unknown group; valid: {list(QUANTITIES)}")
             for name, raw in dict(quantities or {}).items():
                 key = f"{root}.actor_params.{group}.{name}"
                 if name not in QUANTITIES[group]:
                     hint = (" (a position drive's gains are actuator_properties.stiffness / damping)"
                             if group == "dof_properties" and name == "stiffness" else "")
-                    raise ValueError(f"{key}: unknown parameter; valid in {group}: "
+                    raise ConfigError(f"{key}: unknown parameter; valid in {group}: "
                                      f"{list(QUANTITIES[group])}{hint}")
                 for i, item in enumerate(raw if isinstance(raw, list) else [raw]):
                     self._add_entry(item, key if not isinstance(raw, list) else f"{key}[{i}]",
@@ -237,7 +239,7 @@ class Randomizer:
             return None, None
         key = f"{self.root}.{section}"
         if not isinstance(raw, dict):
-            raise ValueError(f"{key}: expected a mapping, got {raw!r}")
+            raise ConfigError(f"{key}: expected a mapping, got {raw!r}")
         noise = {k: v for k, v in raw.items() if k not in extra}
         spec = _parse_spec(noise, key, NOISE_KEYS) if noise else None
         extras = [raw.get(k) for k in extra]
@@ -247,7 +249,7 @@ class Randomizer:
         if spec.apply == "interval":
             spec.interval = _interval_steps(raw, spec.key, self.control_dt)
         elif "interval_s" in raw or "interval_steps" in raw:
-            raise ValueError(f"{spec.key}: interval_s / interval_steps need apply: interval")
+            raise ConfigError(f"{spec.key}: interval_s / interval_steps need apply: interval")
 
     def _add_entry(self, raw: Any, key: str, quantity: Quantity) -> None:
         allowed = DRAW_KEYS + ((quantity.selects,) if quantity.selects else ())
@@ -262,7 +264,7 @@ class Randomizer:
         for name in SELECTORS:
             if name in raw and name in allowed:
                 if selector is not None:
-                    raise ValueError(f"{key}: give either {selector} or {name}, not both")
+                    raise ConfigError(f"{key}: give either {selector} or {name}, not both")
                 selector, value = name, raw[name]
                 patterns = [value] if isinstance(value, str) else [str(v) for v in value]
         self.entries.append((spec, quantity, patterns, selector))
@@ -274,7 +276,7 @@ class Randomizer:
         if spec.operation == "scaling":
             low = spec.lo if spec.distribution != "gaussian" else spec.lo - 3.0 * spec.hi
             if low < 0 or (quantity.minimum > 0 and low <= 0):
-                raise ValueError(f"{spec.key}.range={[spec.lo, spec.hi]}: this quantity must stay {what}; a scaling "
+                raise ConfigError(f"{spec.key}.range={[spec.lo, spec.hi]}: this quantity must stay {what}; a scaling "
                                  "range must be > 0 (gaussian: mean - 3 std > 0)")
         # additive ranges are checked against the nominal values in bind()
 
@@ -302,7 +304,7 @@ class Randomizer:
                 for i in index.tolist():
                     clash = written.get((target.field, target.column, i))
                     if clash is not None:
-                        raise ValueError(f"{spec.key} and {clash} both randomise {target.field}"
+                        raise ConfigError(f"{spec.key} and {clash} both randomise {target.field}"
                                          f"{'' if target.column is None else f'[{target.column}]'} of the same "
                                          "element; select disjoint elements")
                     written[(target.field, target.column, i)] = spec.key
@@ -312,7 +314,7 @@ class Randomizer:
             if quantity.minimum is not None and spec.operation == "additive" and spec.distribution != "gaussian":
                 low = float((param.nominal + spec.lo).min())
                 if low < quantity.minimum or (quantity.minimum > 0 and low <= 0):
-                    raise ValueError(f"{spec.key}.range={[spec.lo, spec.hi]}: this quantity must stay "
+                    raise ConfigError(f"{spec.key}.range={[spec.lo, spec.hi]}: this quantity must stay "
                                      f"{'> 0' if quantity.minimum > 0 else '>= 0'}, but nominal + low = {low:.4g}")
             self.params.append(param)
         self.inertia = (InertiaConstants(m, sim.device)
@@ -352,7 +354,7 @@ class Randomizer:
         """(per-world view (W, n[, 3]) to write, its nominal values) of one target."""
         if quantity.limiter:
             if sim.torque_speed is None:
-                raise ValueError(f"{key}: the drives have no torque-speed limit; set env.control.torqueSpeed")
+                raise ConfigError(f"{key}: the drives have no torque-speed limit; set env.control.torqueSpeed")
             view = getattr(sim.torque_speed, target.field)
             return view, view[:1].clone()
         full = sim.model_field(target.field)
@@ -428,11 +430,11 @@ class Randomizer:
         terms = dict(self.obs_terms or {})
         unknown = [n for n in terms if n not in layout.slices]
         if unknown:
-            raise ValueError(f"{self.root}.observations.terms: unknown observation term(s) {unknown}; "
+            raise ConfigError(f"{self.root}.observations.terms: unknown observation term(s) {unknown}; "
                              f"terms of this task: {layout.names}")
         bad = [n for n, v in terms.items() if not float(v) >= 0]
         if bad:
-            raise ValueError(f"{self.root}.observations.terms: noise of {bad} must be >= 0")
+            raise ConfigError(f"{self.root}.observations.terms: noise of {bad} must be >= 0")
         layout = ObsLayout([ObsTerm(t.name, t.size, t.scale, t.noise + float(terms.get(t.name, 0.0)) * abs(t.scale))
                             for t in layout.terms])
         scale = layout.noise_scale(self.device)
@@ -489,7 +491,7 @@ class Randomizer:
     def setup_delay(self, nominal: int, num_actions: int) -> None:
         """Allocate the action ring buffer: ``nominal`` (env.control.actionDelay) plus the randomised range."""
         if nominal < 0:
-            raise ValueError(f"env.control.actionDelay={nominal} is invalid: give a whole number of policy steps >= 0")
+            raise ConfigError(f"env.control.actionDelay={nominal} is invalid: give a whole number of policy steps >= 0")
         self.nominal_delay = int(nominal)
         self.max_delay = self.nominal_delay + (int(self.delay_spec.hi) if self.delay_spec is not None else 0)
         self.delay = torch.full((self.num_envs,), self.nominal_delay, dtype=torch.long, device=self.device)

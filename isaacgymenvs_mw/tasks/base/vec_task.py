@@ -53,6 +53,7 @@ from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer, wrap_reset
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
+from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
@@ -101,7 +102,7 @@ class VecTask:
         self.clip_actions = _positive(env, "clipActions", math.inf)
         self.history_specs = parse_history(env)
         if "critic" in self.history_specs and self.num_states == 0:
-            raise ValueError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
+            raise ConfigError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
                              "policy observation, history included (env.history.policy)")
         self.obs_history: ObsHistory | None = None
         self.state_history: ObsHistory | None = None
@@ -161,7 +162,7 @@ class VecTask:
         base_pos, base_quat = self._base_init_pose(env) if not fix_base else (None, None)
         keep_contacts = bool(asset.get("keepAssetContacts", is_mjcf(asset_file)))
         if keep_contacts and "selfCollisions" in asset:
-            raise ValueError(
+            raise ConfigError(
                 "env.asset.selfCollisions is set but the asset's own contact settings are kept "
                 "(env.asset.keepAssetContacts is True, the default for an MJCF): set keepAssetContacts: False to "
                 "use the framework's collision filter, or remove selfCollisions and say it in the MJCF"
@@ -196,10 +197,10 @@ class VecTask:
         for key, size in (("pos", 3), ("rot", 4)):
             value = init.get(key)
             if value is not None and len(value) != size:
-                raise ValueError(f"env.baseInitState.{key}={list(value)} is invalid: give {size} numbers")
+                raise ConfigError(f"env.baseInitState.{key}={list(value)} is invalid: give {size} numbers")
             out.append(None if value is None else tuple(float(v) for v in value))
         if out[1] is not None and not math.isclose(sum(v * v for v in out[1]), 1.0, rel_tol=1e-3):
-            raise ValueError(f"env.baseInitState.rot={list(out[1])} is not a unit quaternion (w, x, y, z)")
+            raise ConfigError(f"env.baseInitState.rot={list(out[1])} is not a unit quaternion (w, x, y, z)")
         return out[0], out[1]
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
@@ -238,7 +239,7 @@ class VecTask:
         config), or to the working directory for a config built by hand."""
         name = asset_cfg.get("assetFileName")
         if not name:
-            raise ValueError("env.asset.assetFileName is not set in the task YAML")
+            raise ConfigError("env.asset.assetFileName is not set in the task YAML")
         root = str(asset_cfg.get("assetRoot") or "")
         yaml_dir = self.cfg.get("yaml_dir")
         if not root:
@@ -252,7 +253,7 @@ class VecTask:
                                             "records no task YAML folder (task.yaml_dir)")
         path = base / name
         if not path.is_file():
-            raise FileNotFoundError(
+            raise MissingFileError(
                 f"env.asset: asset file '{path}' does not exist (assetRoot='{root}', assetFileName='{name}'; {how})"
             )
         return path
@@ -354,13 +355,13 @@ class VecTask:
         """
         nu = self.sim.num_actuators
         if nu == 0:
-            raise ValueError(
+            raise ConfigError(
                 f"{type(self).__name__}: env.numActions={self.num_actions} but the model has no actuators: give the "
                 "asset's joints a drive (env.control.driveMode / defaultDriveMode) or use an MJCF with <actuator>"
             )
         if nu != self.num_actions:
             listing = [f"{a} -> {j}" for a, j in zip(self.sim.actuator_names, self.sim.actuator_joints)]
-            raise ValueError(
+            raise ConfigError(
                 f"{type(self).__name__}: env.numActions={self.num_actions} but the model has {nu} actuators "
                 f"(ctrl columns, name -> joint: {listing}); set env.numActions: {nu}, or change the drives"
             )
@@ -520,7 +521,7 @@ class VecTask:
         """``sim.compileStep``: True / False, or "auto" (the default): compiled where the step is captured (CUDA)."""
         value = self.cfg.get("sim", {}).get("compileStep", "auto")
         if value not in (True, False, "auto"):
-            raise ValueError(f"sim.compileStep={value!r} is invalid: give True, False or auto")
+            raise ConfigError(f"sim.compileStep={value!r} is invalid: give True, False or auto")
         if value != "auto":
             return bool(value)
         if not self._step_graphs_wanted:
@@ -609,7 +610,7 @@ class VecTask:
             self.compute_observations()
         except RuntimeError as err:
             if "size" in str(err) or "shape" in str(err):
-                raise ValueError(
+                raise ConfigError(
                     f"{type(self).__name__}: the observation it computes does not fit env.numObservations="
                     f"{self.num_obs} / env.numStates={self.num_states} ({err})"
                 ) from err
@@ -618,7 +619,7 @@ class VecTask:
                                ("numStates", self.states_buf, self.num_states)):
             written = (~torch.isnan(buf)).any(dim=0)
             if size and not bool(written.all()):
-                raise ValueError(
+                raise ConfigError(
                     f"{type(self).__name__}: env.{key}={size} but the task wrote only {int(written.sum())} "
                     f"columns; set env.{key} to the size the task computes"
                 )
@@ -684,7 +685,7 @@ def joint_drives(control: dict, joints: list[str], owned: dict[str, str],
     explicit = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode")
     clash = {j: owned[j] for j in explicit if j in owned}
     if clash:
-        raise ValueError(
+        raise ConfigError(
             f"env.control.driveMode: joints {sorted(clash)} are already driven by the asset's own actuators "
             f"({clash}); the asset's actuators are used as written, so remove these driveMode entries"
         )
@@ -737,7 +738,7 @@ def warn_unused_ige_keys(env: dict) -> list[str]:
 def _check_sim_keys(sim: dict) -> None:
     unknown = sorted(str(k) for k in sim if k not in SIM_KEYS)
     if unknown:
-        raise ValueError(f"sim: unknown key(s) {unknown} (IsaacGymEnvs' PhysX keys such as physx, substeps and "
+        raise ConfigError(f"sim: unknown key(s) {unknown} (IsaacGymEnvs' PhysX keys such as physx, substeps and "
                          f"use_gpu_pipeline have no counterpart here); valid keys: {list(SIM_KEYS)}")
 
 
@@ -766,20 +767,20 @@ def torque_speed_limits(cfg: dict | None, joints: list[str]) -> dict[str, tuple[
     key = "env.control.torqueSpeed"
     unknown = sorted(set(cfg) - {"saturationTorque", "torqueLimit", "velocityLimit"})
     if unknown:
-        raise ValueError(f"{key}: unknown key(s) {unknown}; valid: saturationTorque, torqueLimit, velocityLimit")
+        raise ConfigError(f"{key}: unknown key(s) {unknown}; valid: saturationTorque, torqueLimit, velocityLimit")
     for required in ("saturationTorque", "velocityLimit"):
         if not cfg.get(required):
-            raise ValueError(f"{key}.{required} is required ({{joint pattern: value}})")
+            raise ConfigError(f"{key}.{required} is required ({{joint pattern: value}})")
     sat = match_joint_values(cfg["saturationTorque"], joints, f"{key}.saturationTorque")
     speed = match_joint_values(cfg["velocityLimit"], joints, f"{key}.velocityLimit")
     limit = match_joint_values(cfg.get("torqueLimit"), joints, f"{key}.torqueLimit")
     out = {}
     for j in sat:
         if j not in speed:
-            raise ValueError(f"{key}.velocityLimit gives no value for joint '{j}', which has a saturationTorque")
+            raise ConfigError(f"{key}.velocityLimit gives no value for joint '{j}', which has a saturationTorque")
         values = (float(sat[j]), float(limit.get(j, sat[j])), float(speed[j]))
         if not all(v > 0 for v in values):
-            raise ValueError(f"{key}: joint '{j}' has {values} (saturationTorque, torqueLimit, velocityLimit); "
+            raise ConfigError(f"{key}: joint '{j}' has {values} (saturationTorque, torqueLimit, velocityLimit); "
                              "each must be > 0")
         out[j] = values
     return out
@@ -788,7 +789,7 @@ def torque_speed_limits(cfg: dict | None, joints: list[str]) -> dict[str, tuple[
 def _require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:
     if key not in section or section[key] is None:
         if default is None:
-            raise ValueError(f"env.{key} is required in the task YAML")
+            raise ConfigError(f"env.{key} is required in the task YAML")
         return default
     return whole_number(section[key], f"env.{key}", minimum)
 
@@ -798,7 +799,7 @@ def _positive(section: dict, key: str, default: float) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"env.{key}={section[key]!r} is invalid: give a number > 0") from None
+        raise ConfigError(f"env.{key}={section[key]!r} is invalid: give a number > 0") from None
     if not value > 0:
-        raise ValueError(f"env.{key}={value} is invalid: give a number > 0 (inf for no clipping)")
+        raise ConfigError(f"env.{key}={value} is invalid: give a number > 0 (inf for no clipping)")
     return value

@@ -1,0 +1,91 @@
+"""Bad input ends ``python train.py`` with one line on stderr, exit status 2, no traceback, and the key as typed.
+
+The table of inputs and messages lives in docs/errors.md; every row there is run here (so the documentation cannot
+drift from what the program says), and the same checks hold for each: the whole message equals the row's, after
+``{tmp}`` is replaced by this test's folder of prepared files (a truncated checkpoint, an empty task YAML, ...).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import CPU_ARGS, REPO_ROOT
+
+DOC = REPO_ROOT / "docs" / "errors.md"
+ROW = re.compile(r"^\| `(?P<args>[^`]+)` \| `(?P<message>.+)` \|$")
+
+
+def doc_rows() -> list[tuple[str, str]]:
+    rows = [(m["args"], m["message"]) for m in map(ROW.match, DOC.read_text().splitlines()) if m]
+    assert len(rows) >= 20, f"docs/errors.md lists {len(rows)} bad inputs"
+    return rows
+
+
+def prepare(tmp: Path) -> None:
+    """The files the rows name: an empty task YAML and one without name:, checkpoints that are not."""
+    (tmp / "cfg" / "task").mkdir(parents=True)
+    (tmp / "cfg" / "train").mkdir()
+    (tmp / "cfg" / "task" / "Empty.yaml").write_text("")
+    (tmp / "cfg" / "task" / "Unnamed.yaml").write_text("env:\n  numEnvs: 4\n")
+    for name in ("Empty", "Unnamed"):
+        (tmp / "cfg" / "train" / f"{name}PPO.yaml").write_text((REPO_ROOT / "cfg/train/CartpolePPO.yaml").read_text())
+    torch.save({"actor_state_dict": {}, "iter": 1}, tmp / "whole.pt")
+    (tmp / "truncated.pt").write_bytes((tmp / "whole.pt").read_bytes()[:100])
+    torch.save({"notes": "not a policy"}, tmp / "notes.pt")
+
+
+def run_row(args: str, tmp: Path) -> subprocess.CompletedProcess:
+    argv = args.replace("{tmp}", str(tmp)).split()
+    flags = argv[:2] if argv[0].startswith("--") else []  # e.g. --config-dir DIR: before the overrides
+    # CPU_ARGS first: a row may name its own device, and Hydra takes the last value of a key.
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), *flags, *CPU_ARGS, "max_iterations=1", f"runs_dir={tmp}/runs",
+           *argv[len(flags):]]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    env.pop("HYDRA_FULL_ERROR", None)
+    return subprocess.run(cmd, cwd=tmp, capture_output=True, text=True, timeout=300, env=env)
+
+
+@pytest.fixture(scope="module")
+def outcomes(tmp_path_factory) -> tuple[Path, dict[str, subprocess.CompletedProcess]]:
+    tmp = tmp_path_factory.mktemp("bad_input")
+    prepare(tmp)
+    rows = doc_rows()
+    with ThreadPoolExecutor(max_workers=2) as pool:  # each run is mostly Python start-up; CI has 2 cores
+        results = list(pool.map(lambda row: run_row(row[0], tmp), rows))
+    return tmp, {args: proc for (args, _), proc in zip(rows, results)}
+
+
+@pytest.mark.parametrize("args, message", doc_rows(), ids=[args for args, _ in doc_rows()])
+def test_bad_input_is_one_line_naming_the_key(outcomes, args, message):
+    tmp, procs = outcomes
+    proc = procs[args]
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2, out[-3000:]
+    assert "Traceback" not in out and "HYDRA_FULL_ERROR" not in out and "Error executing job" not in out, out
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("[train] error: ")]
+    assert errors == [f"[train] error: {message.replace('{tmp}', str(tmp))}"], proc.stderr[-3000:]
+    key = re.match(r"[+\-]*([^=\s]+)", args.split()[-1]).group(1)  # the row's last override names its key
+    assert key in errors[0], (key, errors[0])
+
+
+def test_verbose_keeps_the_traceback(tmp_path):
+    proc = run_row("num_envs=0 verbose=True", tmp_path)
+    assert proc.returncode != 0 and "Traceback" in proc.stderr and "num_envs=0 is invalid" in proc.stderr
+
+
+def test_task_keys_are_respelled_for_the_command_line():
+    from isaacgymenvs_mw.utils.errors import ConfigError, under_task
+
+    # A task names keys from its own section, where task. is the randomisation subsection (task.task.* outside).
+    err = under_task(ConfigError("sim.dt must be > 0; see env.terrain.type and task.randomization_params.x, "
+                                 "not cfg/sim.yaml, my-env.x or mujoco.sim.x"))
+    assert str(err) == ("task.sim.dt must be > 0; see task.env.terrain.type and task.task.randomization_params.x, "
+                        "not cfg/sim.yaml, my-env.x or mujoco.sim.x")
+    assert isinstance(err, ConfigError)
