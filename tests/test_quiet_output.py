@@ -4,11 +4,13 @@ step, so that stepping compiles or loads nothing more."""
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
 import sys
 
+import pytest
 from conftest import CPU_ARGS, REPO_ROOT
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
@@ -39,7 +41,30 @@ def test_default_output_is_compact(tmp_path):
 def test_eta_formats_the_time_left():
     from isaacgymenvs_mw.learning.runner import _duration
 
-    assert [_duration(s) for s in (0.4, 42, 185, 3725)] == ["0s", "42s", "3m05s", "1h02m"]
+    assert [_duration(s) for s in (0.4, 42, 185, 3725, float("nan"))] == ["0s", "42s", "3m05s", "1h02m", "--"]
+
+
+def test_eta_leaves_out_the_compiling_first_iteration():
+    # Go1Terrain's first iteration (compiling) took minutes and its ETA read 8h10m; steady ones are what is left.
+    from isaacgymenvs_mw.learning.runner import steady_iteration_s
+
+    history = [{"collect_s": 90.0, "learn_s": 10.0}, {"collect_s": 0.3, "learn_s": 0.1},
+               {"collect_s": 0.5, "learn_s": 0.1}]
+    assert steady_iteration_s(history) == pytest.approx((0.4 + 0.6) / 2)
+    assert math.isnan(steady_iteration_s(history[:1]))  # only the first: not known yet
+
+
+def test_a_slow_first_collect_reports_progress(monkeypatch, capsys):
+    from isaacgymenvs_mw.learning import runner
+
+    clock = iter([100.0, 104.0, 120.0, 150.0])  # seconds at steps 1, 2, 3, 4 (the last: no line, the update follows)
+    monkeypatch.setattr(runner.time, "perf_counter", lambda: next(clock))
+    progress = runner._FirstCollectProgress(iteration=1, steps=4, started=95.0, every_s=15.0)
+    for step in range(1, 5):
+        progress.step_done(step)
+    lines = capsys.readouterr().out.splitlines()
+    # 104 s is 9 s after the start (quiet); 120 s is 25 s: a line; 150 s is 30 s after it, but the last step
+    assert lines == ["[it     1] collecting: env step 3/4 after 25s, about 8s more before the update"]
 
 
 def test_verbose_shows_warp_and_rsl_rl_detail(tmp_path):

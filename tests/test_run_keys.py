@@ -11,8 +11,10 @@ import sys
 from types import SimpleNamespace
 
 import pytest
+import torch
 
 from conftest import CPU_ARGS, REPO_ROOT
+from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import _stop_on_signal, run
 from isaacgymenvs_mw.learning.runner import Runner, StopRequested
 from isaacgymenvs_mw.utils.config import check_runs_dir, compose_config
@@ -122,6 +124,7 @@ def test_signal_saves_checkpoint_marks_summary_and_exits_nonzero(tmp_path, signu
     checkpoints = sorted(p.name for p in run_dir.glob("model_*.pt"))
     assert checkpoints == [f"model_{last}_interrupted.pt"]  # what it learned, and no 'finished' checkpoint
     assert f"stopped by {signal.Signals(signum).name}" in text
+    assert text.count("stopped by") == 1, text[-3000:]  # once, from the run; train.py only sets the status
 
 
 def _deliver(signum):
@@ -157,3 +160,45 @@ def test_sigint_pair_from_timeout_is_one_request():
         assert runner.stop_signal == signal.SIGINT
         _deliver(signal.SIGINT)  # would raise KeyboardInterrupt here if it counted as insisting
         assert runner.stop_signal == signal.SIGINT
+
+
+def test_a_stop_before_the_first_iteration_says_no_checkpoint_exists(tmp_path):
+    # A first iteration of 100000 env steps cannot end before the signal: nothing may be saved, and the user is told.
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=5",
+           "train.runner.num_steps_per_env=100000", *CPU_ARGS, f"runs_dir={runs}"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("[train] Cartpole:"):  # training starts right after this line
+                proc.send_signal(signal.SIGINT)
+                break
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = "".join(lines) + out
+    assert proc.returncode == 130, text[-3000:]
+    assert "no checkpoint exists yet" in text and text.count("stopped by SIGINT") == 1, text[-3000:]
+    (run_dir,) = (runs / "Cartpole").iterdir()
+    assert not list(run_dir.glob("model_*.pt"))
+    assert json.loads((run_dir / "summary.json").read_text())["iterations"] == 0
+
+
+def test_cpu_threads_sets_torchs_thread_count():
+    from isaacgymenvs_mw.utils.config import cpu_threads
+
+    assert cpu_threads("auto") == os.cpu_count() and cpu_threads(3) == 3 and cpu_threads("2") == 2
+    for bad in (0, -1, 1.5, "many", True):
+        with pytest.raises(ValueError, match=r"cpu_threads=.* is invalid: give a whole number >= 1 or auto"):
+            cpu_threads(bad)
+    before = torch.get_num_threads()
+    try:
+        task = make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=["cpu_threads=2"])
+        assert torch.get_num_threads() == 2
+        task.close()
+    finally:
+        torch.set_num_threads(before)
