@@ -1,0 +1,102 @@
+"""Every shipped task behaves as it did when this recording was made (issue 31: the episode contract, observations
+from their layout and scenes of assets moved code, not behaviour).
+
+For each task: 2 worlds on the CPU, seed 0; ``reset()``, 50 env steps of zero actions, then 50 of seeded uniform
+random actions in [-1, 1]. Recorded per step: the policy observation, the critic state (when the task has one), the
+reward, the reset and time-out flags, and the episode sums the task reports (``extras["episode_terms"]`` and
+``extras["episode_metrics"]``). The recording was made before the refactor, from the code of the commit that added this file:
+
+    python tests/test_behaviour_recording.py --record
+
+Comparison: bitwise for flags, and within 1e-6 (absolute, plus the same relative) for values, since a refactor may
+legitimately change the order of floating-point operations (a sum of named terms in a loop, say).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+if str(REPO_ROOT) not in sys.path:  # `examples` (the tutorial's Pendulum) is importable from the repository root
+    sys.path.insert(0, str(REPO_ROOT))
+DATA = Path(__file__).resolve().parent / "data" / "behaviour"
+TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Terrain", "Ant", "Humanoid", "Pendulum"]
+NUM_ENVS, STEPS, SEED = 2, 50, 0
+# The terrain tasks build a whole map for any number of worlds: a small one keeps the test fast.
+SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "task.env.terrain.maxInitLevel=2"]
+
+
+# Episodes short enough to end inside the 100 recorded steps, so that time-outs and resets are recorded too (the
+# locomotion tasks do not fall in 100 steps of these actions). The values are what matters: if a key is renamed,
+# give the same length under the new name.
+SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.episodeLength=30"],
+                  "Humanoid": ["task.env.episodeLength=30"], "Cartpole": ["task.env.maxEpisodeLength=40"],
+                  "Pendulum": ["task.env.maxEpisodeLength=40"]}
+
+
+def _make(task: str):
+    from isaacgymenvs_mw import make
+
+    overrides = SMALL_MAP if task.endswith("Terrain") else []
+    overrides = [*overrides, *SHORT_EPISODES.get(task, SHORT_EPISODES["legged"])]
+    if task == "Pendulum":
+        overrides = [*overrides, "task_module=examples.pendulum_task"]
+    return make(task, num_envs=NUM_ENVS, sim_device="cpu", rl_device="cpu", seed=SEED, overrides=overrides)
+
+
+def run_task(task: str) -> dict[str, np.ndarray]:
+    env = _make(task)
+    gen = torch.Generator().manual_seed(SEED)
+    actions = [torch.zeros(NUM_ENVS, env.num_actions)] * STEPS
+    actions += [torch.rand(NUM_ENVS, env.num_actions, generator=gen) * 2 - 1 for _ in range(STEPS)]
+    rows: dict[str, list[np.ndarray]] = {}
+
+    def add(name: str, value) -> None:
+        rows.setdefault(name, []).append(torch.as_tensor(value).detach().cpu().numpy().copy())
+
+    obs = env.reset()
+    add("reset_obs", obs["obs"])
+    for action in actions:
+        obs, rew, reset, extras = env.step(action)
+        add("obs", obs["obs"])
+        if "states" in obs:
+            add("states", obs["states"])
+        add("rew", rew)
+        add("reset", reset)
+        add("time_outs", extras["time_outs"])
+        for group in ("episode_terms", "episode_metrics"):
+            for name, value in extras.get(group, {}).items():
+                add(f"{group}/{name}", value)
+    env.close()
+    return {name: np.stack(values) for name, values in rows.items()}
+
+
+def record() -> None:
+    DATA.mkdir(parents=True, exist_ok=True)
+    for task in TASKS:
+        np.savez_compressed(DATA / f"{task}.npz", **run_task(task))
+        print(f"recorded {task}")
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_task_behaves_as_recorded(task):
+    expected = dict(np.load(DATA / f"{task}.npz"))
+    got = run_task(task)
+    assert sorted(got) == sorted(expected), "the recorded quantities differ (names of episode terms, states)"
+    for name, want in expected.items():
+        have = got[name]
+        assert have.shape == want.shape, (name, have.shape, want.shape)
+        if name in ("reset", "time_outs"):
+            np.testing.assert_array_equal(have, want, err_msg=f"{task}: {name}")
+        else:
+            np.testing.assert_allclose(have, want, rtol=1e-6, atol=1e-6, err_msg=f"{task}: {name}")
+
+
+if __name__ == "__main__":
+    if "--record" in sys.argv:
+        record()
