@@ -24,7 +24,7 @@ def make(
     holding ``task/<Name>.yaml`` and ``train/<Name>PPO.yaml`` (train.py's ``--config-dir``); a task class outside
     the package is imported with ``overrides=["task_module=my_tasks"]`` (the module must be importable).
     """
-    from isaacgymenvs_mw.learning.launch import build_task
+    from isaacgymenvs_mw.tasks.build import build_task
     from isaacgymenvs_mw.utils.config import compose_config
     from isaacgymenvs_mw.utils.seeding import set_seed
 

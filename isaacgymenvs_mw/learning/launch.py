@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime
-import importlib
 import json
 import os
 import signal
@@ -19,47 +18,18 @@ from isaacgymenvs_mw.learning.loggers import check_logger
 from isaacgymenvs_mw.learning.runner import (
     Runner,
     device_description,
+    episode_metrics,
     evaluate,
     package_versions,
     rsl_rl_config,
     write_json,
 )
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
-from isaacgymenvs_mw.sim import set_verbose
-from isaacgymenvs_mw.tasks import get_task_class
-from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, cpu_threads, to_dict
-from isaacgymenvs_mw.utils.device import check_device_pair, resolve_device
-from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError, one_line, under_task
+from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
+from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_dict
+from isaacgymenvs_mw.utils.device import resolve_device
+from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError, one_line
 from isaacgymenvs_mw.utils.seeding import set_seed
-
-
-def build_task(cfg: DictConfig):
-    """Construct the task named by ``cfg.task_name`` on the configured devices."""
-    check_run_config(cfg)
-    set_verbose(cfg.get("verbose", False))
-    torch.set_num_threads(cpu_threads(cfg.get("cpu_threads", 1)))
-    if cfg.get("task_module"):
-        importlib.import_module(cfg.task_module)
-    task_class = get_task_class(cfg.task_name)
-    rank = int(os.getenv("LOCAL_RANK", "0"))
-    if cfg.get("multi_gpu", False):
-        sim_device = rl_device = f"cuda:{rank}"
-    else:
-        sim_device = resolve_device(cfg.sim_device, "sim_device")
-        rl_device = resolve_device(cfg.rl_device, "rl_device")
-    check_device_pair(sim_device, rl_device)
-    if sim_device.startswith("cuda"):
-        torch.cuda.set_device(torch.device(sim_device))
-    task_cfg = to_dict(cfg.task)
-    # The run-level `deterministic` reaches the sim layer through the task's sim section (MuJoCo Warp's option).
-    task_cfg.setdefault("sim", {})["deterministic"] = bool(cfg.get("deterministic", False))
-    try:
-        return task_class(
-            task_cfg, rl_device=rl_device, sim_device=sim_device, graphics_device_id=cfg.graphics_device_id,
-            headless=cfg.headless, virtual_screen_capture=False, force_render=False,
-        )
-    except ConfigError as err:  # the task names its keys from its own section; the command line says task.<key>
-        raise under_task(err) from err
 
 
 def run(cfg: DictConfig, started_at: float | None = None) -> dict:
@@ -141,7 +111,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         "mean_episode_reward": means.get("mean_episode_reward"),
         "mean_episode_length": means.get("mean_episode_length"),
         "timeout_fraction": means.get("timeout_fraction"),
-        "terrain_level": means.get("Episode/terrain_level"),  # None without a terrain curriculum
+        **episode_metrics(means),  # what the task declares, by name (terrain_level on the terrain tasks)
         "nonfinite_resets": runner.nonfinite_resets,
         "device": device_description(task.sim_device),
         "versions": package_versions(),

@@ -23,7 +23,7 @@ from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.loggers import make_writer
-from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
 from isaacgymenvs_mw.utils.config import check_train_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -196,8 +196,9 @@ class Runner(OnPolicyRunner):
                   f"above 1e4) simulator state and were reset ({self.nonfinite_resets} so far)", flush=True)
         if stats["episodes"]:
             episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
-            if "Episode/terrain_level" in stats:
-                episodes += f" | terrain_level {stats['Episode/terrain_level']:5.2f}"
+            for key, value in stats.items():  # the metrics the task declares (e.g. a curriculum's terrain level)
+                if key.startswith(METRIC_GROUP):
+                    episodes += f" | {key[len(METRIC_GROUP):]} {value:5.2f}"
         else:  # a host read, but only on iterations where no episode ended
             longest = int(env.episode_length_buf.max())
             episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
@@ -235,6 +236,11 @@ class _FirstCollectProgress:
         left = spent / step * (self.steps - step)
         print(f"[it {self.iteration:>5}] collecting: env step {step}/{self.steps} after {_duration(spent)}, "
               f"about {_duration(left)} more before the update", flush=True)
+
+
+def episode_metrics(means: dict[str, float]) -> dict[str, float]:
+    """The task's declared metrics among episode statistics, by their own names (``terrain_level``)."""
+    return {key[len(METRIC_GROUP):]: value for key, value in means.items() if key.startswith(METRIC_GROUP)}
 
 
 def steady_iteration_s(history: list[dict]) -> float:
@@ -275,8 +281,9 @@ def evaluate(task, policy, device: str) -> dict:
     result_len = torch.zeros(n, device=env.device)
     result_timeout = torch.zeros(n, dtype=torch.bool, device=env.device)
     metric_sums: dict[str, torch.Tensor] = {}
-    # On terrain: each env's level during its first episode (levels change only at resets), for per-level results.
-    levels = task.terrain_levels.clone() if getattr(task, "terrain", None) is not None else None
+    # Results per group the task declares (the terrain tasks: each env's level during its first episode; levels
+    # change only at resets), as the task defines them at the start.
+    groups = {name: value.clone() for name, value in task.evaluation_groups().items()}
     obs = env.get_observations()
     max_steps = int(env.max_episode_length) + 2
     with torch.inference_mode():
@@ -308,14 +315,14 @@ def evaluate(task, policy, device: str) -> dict:
     }
     for key, value in metric_sums.items():
         out[key] = float((value / length.clamp(min=1)).mean())
-    if levels is not None:
-        out["per_terrain_level"] = {}
-        for level in sorted(set(levels.tolist())):
-            sel = levels == level
+    for name, labels in groups.items():
+        out[f"per_{name}"] = {}
+        for label in sorted(set(labels.tolist())):
+            sel = labels == label
             row = {"episodes": int(sel.sum()), "survival": float(result_timeout[sel].float().mean()),
                    "mean_episode_length": float(result_len[sel].mean())}
             row.update({k: float((v / length.clamp(min=1))[sel].mean()) for k, v in metric_sums.items()})
-            out["per_terrain_level"][str(level)] = row
+            out[f"per_{name}"][str(label)] = row
     return out
 
 

@@ -8,6 +8,11 @@ from tensordict import TensorDict
 
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
+# Task metrics (``extras["episode_metrics"]``: sums over the episodes that ended in a step) are logged as
+# Episode/<name> in TensorBoard and the history, shown on the progress line, and written to summary.json by name;
+# per-term reward sums (``extras["episode_terms"]``) as Episode_Reward/<name>.
+METRIC_GROUP = "Episode/"
+
 
 class EpisodeStats:
     """Sums over finished episodes, accumulated with tensor ops only; ``pop()`` syncs once and clears."""
@@ -94,8 +99,8 @@ class RslRlVecEnv(VecEnv):
         self.stats.record(rew, reset, extras["time_outs"], extras["nonfinite_resets"])
         if "episode_terms" in extras:  # tasks that report them set them every step
             self.stats.add_terms(extras["episode_terms"])
-        if "episode_metrics" in extras:  # e.g. the terrain curriculum's level
-            self.stats.add_terms(extras["episode_metrics"], group="Episode")
+        if "episode_metrics" in extras:  # the metrics the task declares, e.g. the terrain curriculum's level
+            self.stats.add_terms(extras["episode_metrics"], group=METRIC_GROUP.rstrip("/"))
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

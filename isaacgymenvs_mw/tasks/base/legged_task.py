@@ -332,6 +332,10 @@ class LeggedTask(VecTask):
             ObsTerm("feet_contact", len(self.feet)),  # 1 where the foot's contact force exceeds 1 N
         ] + ([self._height_scan_term()] if self.terrain is not None and not self.measure_heights else [])
 
+    def evaluation_groups(self) -> dict[str, torch.Tensor]:
+        # Test mode reports survival and tracking per curriculum level (eval.json's per_terrain_level).
+        return {"terrain_level": self.terrain_levels} if self.terrain is not None else {}
+
     def deployment_info(self) -> dict:
         info = super().deployment_info()
         gains = self.sim.joint_pd_gains()

@@ -404,6 +404,11 @@ class VecTask:
             self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
             self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
 
+    def evaluation_groups(self) -> dict[str, torch.Tensor]:
+        """Per-env labels by which test mode also reports its results (``per_<name>`` in eval.json), read when the
+        evaluation starts. None by default; the terrain tasks group by curriculum level."""
+        return {}
+
     def deployment_info(self) -> dict[str, Any]:
         """What a runtime needs to feed an exported policy and apply its actions (``learning/export.py`` adds the
         versions). Tasks with joints add their joint names, default pose, action scale and PD gains."""

@@ -1,0 +1,49 @@
+"""Building a task from a composed config: what ``train.py`` and ``isaacgymenvs_mw.make()`` share.
+
+It lives beside the task map, below ``learning/``: building a task needs no trainer, and ``make()`` users get
+tasks without importing rsl_rl.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+
+import torch
+from omegaconf import DictConfig
+
+from isaacgymenvs_mw.sim import set_verbose
+from isaacgymenvs_mw.tasks import get_task_class
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import check_run_config, cpu_threads, to_dict
+from isaacgymenvs_mw.utils.device import check_device_pair, resolve_device
+from isaacgymenvs_mw.utils.errors import ConfigError, under_task
+
+
+def build_task(cfg: DictConfig) -> VecTask:
+    """Construct the task named by ``cfg.task_name`` on the configured devices."""
+    check_run_config(cfg)
+    set_verbose(cfg.get("verbose", False))
+    torch.set_num_threads(cpu_threads(cfg.get("cpu_threads", 1)))
+    if cfg.get("task_module"):
+        importlib.import_module(cfg.task_module)
+    task_class = get_task_class(cfg.task_name)
+    rank = int(os.getenv("LOCAL_RANK", "0"))
+    if cfg.get("multi_gpu", False):
+        sim_device = rl_device = f"cuda:{rank}"
+    else:
+        sim_device = resolve_device(cfg.sim_device, "sim_device")
+        rl_device = resolve_device(cfg.rl_device, "rl_device")
+    check_device_pair(sim_device, rl_device)
+    if sim_device.startswith("cuda"):
+        torch.cuda.set_device(torch.device(sim_device))
+    task_cfg = to_dict(cfg.task)
+    # The run-level `deterministic` reaches the sim layer through the task's sim section (MuJoCo Warp's option).
+    task_cfg.setdefault("sim", {})["deterministic"] = bool(cfg.get("deterministic", False))
+    try:
+        return task_class(
+            task_cfg, rl_device=rl_device, sim_device=sim_device, graphics_device_id=cfg.graphics_device_id,
+            headless=cfg.headless, virtual_screen_capture=False, force_render=False,
+        )
+    except ConfigError as err:  # the task names its keys from its own section; the command line says task.<key>
+        raise under_task(err) from err
