@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks import register_task
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
 
@@ -25,7 +26,6 @@ class Pendulum(VecTask):
         env = cfg["env"]
         self.max_torque = float(env["maxTorque"])
         self.fall_angle = float(env["fallAngle"])
-        self.max_episode_length = int(env["maxEpisodeLength"])
         self.reset_angle = float(env["resetAngle"])
         self.reset_velocity = float(env["resetVelocity"])
         self.reward_scales = {name: float(value) for name, value in env["rewards"].items()}
@@ -38,29 +38,27 @@ class Pendulum(VecTask):
         """Actions arrive clipped to ±clipActions; the hinge's effort drive takes a torque in N m."""
         self.sim.ctrl[:, 0] = actions[:, 0] * self.max_torque
 
-    def post_physics_step(self) -> None:
-        """Reward and resets see the state the actions led to; observations see the state after resets."""
-        self.progress_buf += 1
-        self.compute_reward()
-        self.reset_idx(self.reset_buf != 0)
-        self.compute_observations()
+    def check_termination(self) -> torch.Tensor:
+        """A fall ends the episode; VecTask adds the time-out at env.episodeLength_s."""
+        return pendulum_fallen(self.sim.dof_pos[:, self.hinge], self.fall_angle)
 
     def compute_reward(self) -> None:
         """Score the state the actions led to; the formula is a plain function, so a test can check it alone."""
-        self.rew_buf[:], self.reset_buf[:] = compute_pendulum_reward(
+        self.rew_buf[:] = compute_pendulum_reward(
             angle=self.sim.dof_pos[:, self.hinge],
             velocity=self.sim.dof_vel[:, self.hinge],
             effort=self.sim.ctrl[:, 0] / self.max_torque,
-            progress_buf=self.progress_buf,
-            fall_angle=self.fall_angle,
-            max_episode_length=self.max_episode_length,
+            fallen=self.terminate_buf,
             scales=self.reward_scales,
         )
 
-    def compute_observations(self) -> None:
+    def observation_terms(self) -> list[ObsTerm]:
         """cos θ and sin θ rather than θ: they do not jump when the pole turns past ±π."""
-        angle, velocity = self.sim.dof_pos[:, self.hinge], self.sim.dof_vel[:, self.hinge]
-        self.obs_buf[:] = torch.stack((torch.cos(angle), torch.sin(angle), velocity), dim=-1)
+        hinge = slice(self.hinge, self.hinge + 1)  # (numEnvs, 1) views: the lambdas read each step's state
+        angle, velocity = self.sim.dof_pos[:, hinge], self.sim.dof_vel[:, hinge]
+        return [ObsTerm("cos_angle", 1, compute=lambda: torch.cos(angle)),
+                ObsTerm("sin_angle", 1, compute=lambda: torch.sin(angle)),
+                ObsTerm("angular_velocity", 1, compute=lambda: velocity)]  # rad/s
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         """Restart the selected envs at a random angle and speed near upright.
@@ -77,20 +75,18 @@ class Pendulum(VecTask):
         self.progress_buf.masked_fill_(mask, 0)
 
 
-def compute_pendulum_reward(angle: torch.Tensor, velocity: torch.Tensor, effort: torch.Tensor,
-                            progress_buf: torch.Tensor, fall_angle: float, max_episode_length: int,
-                            scales: dict[str, float]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Reward upright·cos θ + velocity·θ̇² + effort·a² (+ fall on the step it falls); reset on a fall or at the cap.
+def pendulum_fallen(angle: torch.Tensor, fall_angle: float) -> torch.Tensor:
+    """|θ| past fallAngle; the hinge is continuous, so θ is wrapped to (-π, π] first."""
+    return torch.abs(torch.atan2(torch.sin(angle), torch.cos(angle))) > fall_angle
 
-    The hinge is continuous, so θ is wrapped to (-π, π] before it is compared with fallAngle.
-    """
-    fallen = torch.abs(torch.atan2(torch.sin(angle), torch.cos(angle))) > fall_angle
-    reward = (scales["upright"] * torch.cos(angle)
-              + scales["velocity"] * velocity * velocity
-              + scales["effort"] * effort * effort
-              + scales["fall"] * fallen.float())
-    reset = fallen | (progress_buf >= max_episode_length - 1)
-    return reward, reset.long()
+
+def compute_pendulum_reward(angle: torch.Tensor, velocity: torch.Tensor, effort: torch.Tensor,
+                            fallen: torch.Tensor, scales: dict[str, float]) -> torch.Tensor:
+    """Reward upright·cos θ + velocity·θ̇² + effort·a² (+ fall on the step it falls)."""
+    return (scales["upright"] * torch.cos(angle)
+            + scales["velocity"] * velocity * velocity
+            + scales["effort"] * effort * effort
+            + scales["fall"] * fallen.float())
 
 
 register_task("Pendulum", Pendulum)

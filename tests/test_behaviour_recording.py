@@ -34,9 +34,9 @@ SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "
 # Episodes short enough to end inside the 100 recorded steps, so that time-outs and resets are recorded too (the
 # locomotion tasks do not fall in 100 steps of these actions). The values are what matters: if a key is renamed,
 # give the same length under the new name.
-SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.episodeLength=30"],
-                  "Humanoid": ["task.env.episodeLength=30"], "Cartpole": ["task.env.maxEpisodeLength=40"],
-                  "Pendulum": ["task.env.maxEpisodeLength=40"]}
+SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.episodeLength_s=0.4998"],
+                  "Humanoid": ["task.env.episodeLength_s=0.4995"], "Cartpole": ["task.env.episodeLength_s=0.664"],
+                  "Pendulum": ["task.env.episodeLength_s=0.8"]}
 
 
 def _make(task: str):

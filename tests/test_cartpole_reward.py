@@ -1,4 +1,5 @@
-"""Cartpole reward and reset against an independent numpy version of IsaacGymEnvs' formulas."""
+"""Cartpole reward and reset against an independent numpy version of IsaacGymEnvs' formulas (the task's failure
+test and reward function, with VecTask's time limit: an episode ends when progress reaches the cap - 1)."""
 
 from __future__ import annotations
 
@@ -9,16 +10,15 @@ import pytest
 import torch
 
 from cartpole_reference import cartpole_reward_reference, joint_addresses, mj_step_batch
-from isaacgymenvs_mw.tasks.cartpole import compute_cartpole_reward
+from isaacgymenvs_mw.tasks.cartpole import cartpole_failed, compute_cartpole_reward
 
 
 def call_package(x, xd, th, thd, reset_dist, progress, max_len):
     f = lambda a: torch.tensor(np.asarray(a, np.float32))  # noqa: E731
-    rew, reset = compute_cartpole_reward(
-        cart_pos=f(x), cart_vel=f(xd), pole_angle=f(th), pole_vel=f(thd), reset_dist=reset_dist,
-        progress_buf=torch.tensor(np.asarray(progress, np.int64)), max_episode_length=max_len,
-    )
-    return rew, reset
+    failed = cartpole_failed(f(x), f(th), reset_dist)
+    rew = compute_cartpole_reward(cart_vel=f(xd), pole_angle=f(th), pole_vel=f(thd), failed=failed)
+    reset = failed | (torch.tensor(np.asarray(progress, np.int64)) >= max_len - 1)
+    return rew, reset.long()
 
 
 @pytest.mark.parametrize("reset_dist,max_len", [(3.0, 500), (2.4, 10)])
@@ -82,7 +82,8 @@ def test_task_reward_and_resets_on_written_states(make_cartpole):
     """End to end: written states + actions -> one env step; reference = MuJoCo C step + numpy formulas."""
     n = 16
     max_len = 20
-    task = make_cartpole(n, overrides=[f"task.env.maxEpisodeLength={max_len}"])
+    task = make_cartpole(n, overrides=[f"task.env.episodeLength_s={max_len * 0.0166}"])  # max_len policy steps
+    assert task.max_episode_length == max_len
     model = task.sim.mj_model
     cq, pq, cv, pv = joint_addresses(model)
     task.reset()

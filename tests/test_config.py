@@ -47,7 +47,7 @@ def test_built_task_has_overridden_num_envs():
 
 def test_make_num_envs_and_task_yaml_keys_take_effect():
     task = isaacgymenvs_mw.make("Cartpole", num_envs=5, sim_device="cpu", rl_device="cpu", headless=True,
-                                overrides=["task.env.maxEffort=200", "task.env.maxEpisodeLength=33",
+                                overrides=["task.env.maxEffort=200", "task.env.episodeLength_s=0.33",
                                            "task.sim.dt=0.01", "task.env.resetDist=2.0"])
     assert task.num_envs == 5
     assert task.max_episode_length == 33 and task.reset_dist == 2.0
@@ -116,14 +116,22 @@ def test_missing_asset_root_names_the_path(tmp_path):
 
 @pytest.mark.parametrize("num_obs", [5, 3])
 def test_wrong_num_observations(num_obs):
+    # The size is derived from Cartpole's four terms; a YAML value that disagrees names both, at construction.
+    with pytest.raises(ValueError, match=rf"^task\.env\.numObservations={num_obs}, but the task observes 4 values "
+                                         r"\(cart_pos 1 \+ cart_vel 1 \+ pole_angle 1 \+ pole_vel 1\); remove "
+                                         r"task\.env\.numObservations .* or set task\.env\.numObservations: 4$"):
+        isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu",
+                             overrides=[f"+task.env.numObservations={num_obs}"])
+
+
+def test_num_observations_that_agrees_with_the_terms_is_accepted():
     task = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu",
-                                overrides=[f"task.env.numObservations={num_obs}"])
-    with pytest.raises(ValueError, match="numObservations"):
-        task.reset()
+                                overrides=["+task.env.numObservations=4"])
+    assert task.num_obs == 4 and task.reset()["obs"].shape == (2, 4)
 
 
 def test_wrong_num_observations_in_a_training_run(tmp_path):
-    cfg = compose_config(["task=Cartpole", "num_envs=2", "max_iterations=1", "task.env.numObservations=5",
+    cfg = compose_config(["task=Cartpole", "num_envs=2", "max_iterations=1", "+task.env.numObservations=5",
                           *CPU_ARGS, f"runs_dir={tmp_path}"])
     with pytest.raises(ValueError, match="numObservations"):
         run(cfg)
@@ -172,7 +180,8 @@ def test_non_integer_counts_are_rejected(override, key):
     ("task.env.clipObservations=-1", "clipObservations"),  # clamp(min=1, max=-1): every observation becomes -1
     ("task.env.clipObservations=0", "clipObservations"),   # every observation becomes 0
     ("task.env.clipActions=-1", "clipActions"),            # every action becomes -1 (full push one way)
-    ("task.env.maxEpisodeLength=0", "maxEpisodeLength"),   # every step ends every episode
+    ("task.env.episodeLength_s=0", "episodeLength_s"),     # every step ends every episode
+    ("task.env.episodeLength_s=0.01", "episodeLength_s"),  # less than one policy step of 0.0166 s: the same
 ])
 def test_out_of_range_task_values_are_rejected(override, key):
     with pytest.raises(ValueError, match=key):

@@ -17,7 +17,7 @@ ROBOTS = ["Anymal", "Go1"]
 
 # What isaacgymenvs_mw/tasks/base/legged_task.py and VecTask read from a legged robot's composed task config.
 LEGGED_KEYS = [
-    "name", "env.numEnvs", "env.numObservations", "env.numStates", "env.numActions", "env.controlFrequencyInv",
+    "name", "env.numEnvs", "env.numActions", "env.controlFrequencyInv",
     "env.episodeLength_s", "env.asset.assetFileName", "env.asset.baseBody", "env.asset.footBodies",
     "env.asset.terminateContactBodies", "env.asset.penalizeContactBodies", "env.baseInitState.pos",
     "env.baseInitState.rot", "env.defaultJointAngles", "env.control.stiffness", "env.control.damping",

@@ -92,10 +92,10 @@ def test_exported_metadata_equals_the_task(exported):
         ("base_lin_vel", 3, scales.linVel), ("base_ang_vel", 3, scales.angVel), ("projected_gravity", 3, 1.0),
         ("commands", 3, 1.0), ("dof_pos", 12, scales.dofPos), ("dof_vel", 12, scales.dofVel), ("actions", 12, 1.0)]
     assert meta["commands_scale"] == pytest.approx([scales.linVel, scales.linVel, scales.angVel])
-    assert obs["frame_size"] == env.numObservations == 48
+    assert obs["frame_size"] == task.num_obs == 48  # derived from the terms
     assert obs["history"]["length"] == 3 and obs["history"]["terms"] == HISTORY
     assert obs["size"] == 48 + 2 * 24 == task.observation_space.shape[0]
-    assert meta["state"]["size"] == env.numStates and meta["state"]["history"] == {"length": 1}
+    assert meta["state"]["size"] == task.num_states == 55 and meta["state"]["history"] == {"length": 1}
 
     versions = meta["versions"]
     for dist in ("torch", "warp-lang", "mujoco", "mujoco-warp", "rsl-rl-lib"):

@@ -31,7 +31,7 @@ from isaacgymenvs_mw.utils.config import compose_config
 N = 4
 ROBOTS = ["Anymal", "Go1"]
 CONTROL_DT = 0.005 * 4  # task YAML: sim.dt 0.005, env.controlFrequencyInv 4 (both robots)
-POLICY_OBS, NUM_STATES = 48, 55  # task YAML: env.numObservations, env.numStates (both robots)
+POLICY_OBS, NUM_STATES = 48, 55  # derived observation and critic-state sizes (both robots)
 
 # No pushes, ground friction fixed at 1.0 and no observation noise: the robot's state is what the test wrote.
 QUIET = [
@@ -192,7 +192,7 @@ def write_known_root_state(task, robot: str):
     task.sim.write_state(all_envs(), root_pos=root_pos, root_quat=torch.tensor(q, dtype=torch.float32),
                          root_lin_vel=torch.tensor(V_WORLD, dtype=torch.float32),
                          root_ang_vel=torch.tensor(W_BODY, dtype=torch.float32))
-    task._refresh_state()
+    task.refresh_state()
     return rot_matrices(YAW, PITCH, ROLL)
 
 
@@ -222,7 +222,8 @@ def urdf(robot) -> dict:
 def test_builds_and_steps_with_contract_shapes(default_task, robot):
     task = default_task
     cfg = yaml_cfg(robot)
-    assert cfg.env.numObservations == POLICY_OBS and cfg.env.numStates == NUM_STATES
+    assert "numObservations" not in cfg.env and "numStates" not in cfg.env  # derived from the terms
+    assert task.num_obs == POLICY_OBS and task.num_states == NUM_STATES
     assert type(task) is get_task_class(robot)
     assert task.num_envs == N and task.num_actions == 12
     obs_dict = task.reset()
@@ -244,7 +245,7 @@ def test_builds_and_steps_with_contract_shapes(default_task, robot):
 
 
 def test_without_privileged_states_the_obs_dict_has_no_states(robot):
-    task = make_legged(robot, ["task.env.numStates=0"])
+    task = make_legged(robot, ["+task.env.numStates=0"])
     obs_dict, rew, _, _ = task.step(task.zero_actions())
     assert set(obs_dict) == {"obs"} and obs_dict["obs"].shape == (N, POLICY_OBS)
     assert torch.isfinite(rew).all()
@@ -432,7 +433,7 @@ def test_zero_scale_term_is_not_computed_and_episode_sums_are_logged(robot, monk
     assert all(len(calls[name]) == steps for name in nonzero)
     # Each term's episode sum is logged under its name: sum over steps of scale * dt * term, summed over envs.
     assert list(extras["episode_terms"]) == nonzero
-    task.reset_idx(all_envs())
+    task.reset_envs(all_envs())
     logged = task.extras["episode_terms"]
     assert list(logged) == nonzero
     for name in nonzero:
@@ -449,19 +450,19 @@ def test_a_blown_up_world_earns_nothing_and_leaves_the_episode_sums_finite():
     for _ in range(3):
         task.step(task.zero_actions())
     bad = 1
-    before = task.episode_sums.clone()
+    before = task.rewards.episode_sums.clone()
     task.sim.qvel[bad, 0] = float("nan")
     _, rew, reset, extras = task.step(task.zero_actions())
     assert bool(extras["nonfinite_resets"][bad]) and int(reset[bad]) == 1 and float(rew[bad]) == 0.0
     assert torch.isnan(task.sim.body_lin_vel(task._feet_body_ids)[bad]).any()  # what the term reads
-    assert torch.isfinite(task.episode_sums).all()
+    assert torch.isfinite(task.rewards.episode_sums).all()
     # The task reset the world in the same step: its episode's sums, without the blown-up step, are reported.
     assert not reset[torch.arange(task.num_envs) != bad].any()
     reported = torch.stack(list(extras["episode_terms"].values()))
-    assert torch.equal(reported, before[bad]) and not task.episode_sums[bad].any()
-    task.reset_idx(all_envs())
+    assert torch.equal(reported, before[bad]) and not task.rewards.episode_sums[bad].any()
+    task.reset_envs(all_envs())
     assert all(torch.isfinite(v) for v in task.extras["episode_terms"].values())
-    assert not task.episode_sums.any()
+    assert not task.rewards.episode_sums.any()
 
 
 # --------------------------------------------------------------------------------- 6. randomisation
@@ -560,7 +561,7 @@ def test_reward_is_dt_weighted_sum_clamped_at_zero(robot):
     scales = yaml_cfg(robot).env.rewards.scales
     overrides = [f"task.env.rewards.scales.{k}={keep.get(k, 0.0)}" for k in scales]
     task = make_legged(robot, [*QUIET, *overrides])
-    assert task.only_positive_rewards  # YAML rewards.onlyPositiveRewards: True
+    assert task.rewards.only_positive  # YAML rewards.onlyPositiveRewards: True
     rot = write_known_root_state(task, robot)
     v_body = np.einsum("nji,nj->ni", rot, V_WORLD)
     g_body = np.einsum("nji,j->ni", rot, np.array([0.0, 0.0, -1.0]))
@@ -596,7 +597,8 @@ def test_termination_penalty_is_added_after_the_clamp_at_zero(robot):
     actions[2:] = 2.0  # envs 2 and 3: the action change drives the clamped sum below zero
     task.actions[:] = actions
     task.last_actions.zero_()
-    task.terminated = torch.tensor([True, False, True, False])
+    task.terminate_buf[:] = torch.tensor([True, False, True, False])
+    task.timeout_buf.zero_()
     task.compute_reward()
     tracking = np.exp(-np.sum((commands[:, :2] - v_body[:, :2]) ** 2, axis=1) / 0.25)
     others = CONTROL_DT * (1.5 * tracking - 0.2 * np.sum(actions.numpy() ** 2, axis=1))
@@ -621,7 +623,8 @@ def test_penalty_curriculum_scales_penalties_linearly_over_env_steps(robot):
     actions = torch.full((N, 12), 0.5)
     task.actions[:] = actions
     task.last_actions.zero_()
-    task.terminated = torch.tensor([True, False, False, True])
+    task.terminate_buf[:] = torch.tensor([True, False, False, True])
+    task.timeout_buf.zero_()
     tracking = np.exp(-np.sum((commands[:, :2] - v_body[:, :2]) ** 2, axis=1) / 0.25)
     action_rate = np.sum(actions.numpy() ** 2, axis=1)
     fell = np.array([1.0, 0.0, 0.0, 1.0])

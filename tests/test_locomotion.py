@@ -295,19 +295,19 @@ def test_a_blown_up_world_is_reset_by_the_task_and_reports_its_episode(ant):
     task.reset()
     for _ in range(3):
         task.step(torch.zeros(task.num_envs, task.num_actions))
-    before = task.episode_sums.clone()
+    before = task.rewards.episode_sums.clone()
     bad = 2
     task.sim.qvel[bad, 0] = float("nan")
     _, rew, reset, extras = task.step(torch.zeros(task.num_envs, task.num_actions))
     assert bool(extras["nonfinite_resets"][bad]) and int(reset[bad]) == 1 and float(rew[bad]) == 0.0
     assert not reset[torch.arange(task.num_envs) != bad].any()
     reported = torch.stack(list(extras["episode_terms"].values()))
-    assert torch.allclose(reported, before[bad]) and not task.episode_sums[bad].any()
+    assert torch.allclose(reported, before[bad]) and not task.rewards.episode_sums[bad].any()
     assert int(task.progress_buf[bad]) == 0 and torch.isfinite(task.sim.qvel).all()
 
 
 def test_episode_times_out_at_episode_length():
-    task = make("Ant", num_envs=2, overrides=["task.env.episodeLength=5"])
+    task = make("Ant", num_envs=2, overrides=["task.env.episodeLength_s=0.0833"])  # 5 steps of 2 x 0.00833 s
     task.reset()
     for step in range(1, 5):
         _, _, reset, extras = task.step(torch.zeros(2, 8))

@@ -25,7 +25,7 @@ def test_ant_trains_with_64_envs_then_test_mode_reports_speed_and_films(tmp_path
 
     episode = 30  # a short episode keeps the CPU evaluation quick
     eval_cfg = compose_config(["task=Ant", "num_envs=8", "test=True", f"checkpoint={ckpt}",
-                               f"task.env.episodeLength={episode}", "capture_video=True", "capture_video_len=6",
+                               f"task.env.episodeLength_s={episode * 2 * 0.00833}", "capture_video=True", "capture_video_len=6",
                                *run_args])
     result = run(eval_cfg)
     written = json.loads((run_dir / "eval.json").read_text())

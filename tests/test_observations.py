@@ -39,5 +39,5 @@ def test_legged_layout_matches_what_the_task_writes(robot):
     assert float(noise[task.obs_layout.slices["dof_vel"]][0]) == pytest.approx(1.5 * 0.05)
     with pytest.raises(ValueError, match="env.numStates=54"):
         isaacgymenvs_mw.make(robot, num_envs=2, sim_device="cpu", rl_device="cpu",
-                             overrides=["task.env.numStates=54"])
+                             overrides=["+task.env.numStates=54"])
     assert torch.isfinite(obs["obs"]).all()

@@ -32,12 +32,6 @@ from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 class OutsideWalker(VecTask):
     """Keep the torso up with the walker's own hip motors; observation = torso height and the joint state."""
 
-    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless, virtual_screen_capture=False,
-                 force_render=False):
-        self.max_episode_length = int(cfg["env"]["maxEpisodeLength"])
-        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless, virtual_screen_capture,
-                         force_render)
-
     def pre_physics_step(self, actions):
         self.sim.ctrl[:] = actions
 
@@ -69,7 +63,7 @@ env:
   numObservations: 7
   numActions: 2
   controlFrequencyInv: 2
-  maxEpisodeLength: 20
+  episodeLength_s: 0.2          # 20 policy steps of 2 x 0.005 s
   asset:
     assetRoot: ../../assets      # relative to this file's folder (cfg/task/)
     assetFileName: walker.xml

@@ -125,7 +125,7 @@ def test_only_resetting_worlds_draw_and_their_constants_match_mujoco_c():
     names = ("body_mass", "body_ipos", "body_inertia", "geom_friction", "body_invweight0", "dof_invweight0")
     before = {n: field(task, n) for n in names}
     mask = torch.tensor([False, True, False, False, True, False])
-    task.reset_idx(mask)
+    task.reset_envs(mask)
     for n in names:
         after = field(task, n)
         np.testing.assert_array_equal(after[~mask.numpy()], before[n][~mask.numpy()], err_msg=n)
@@ -196,7 +196,7 @@ def test_an_action_delay_of_k_shows_the_action_k_steps_later():
     expected = np.concatenate((np.zeros(k), sent[:-k]))  # nothing sent before the first step: zero action
     np.testing.assert_allclose(seen, np.tile(expected[:, None], (1, 2)), rtol=1e-6)
     # A reset clears the env's history: it acts on zeros again for k steps, the other env goes on.
-    task.reset_idx(torch.tensor([True, False]))
+    task.reset_envs(torch.tensor([True, False]))
     sent2, seen2 = _ctrl_trace(task, 4)
     np.testing.assert_allclose(seen2[:k, 0], 0.0)
     np.testing.assert_allclose(seen2[k:, 0], sent2[:-k], rtol=1e-6)

@@ -192,14 +192,14 @@ def test_height_scan_points_turn_with_the_base_and_match_mj_ray(task):
 def test_observation_and_state_sizes_follow_the_scan(task):
     obs = task.reset()
     assert obs["obs"].shape == (NUM_ENVS, 48 + 187) and obs["states"].shape == (NUM_ENVS, 48 + 187 + 7)
-    blind = make(overrides=[T + "measureHeights=False", "task.env.numObservations=48"])
+    blind = make(overrides=[T + "measureHeights=False", "+task.env.numObservations=48"])
     obs = blind.reset()
     assert obs["obs"].shape == (NUM_ENVS, 48) and obs["states"].shape == (NUM_ENVS, 55 + 187)
     # The critic's last 187 values are the clipped, scaled base height above each scan point minus 0.5 m.
     expected = (blind.sim.root_pos[:, 2:3] - 0.5 - blind.scan_heights()).clamp(-1, 1) * 5.0
     np.testing.assert_allclose(obs["states"][:, 55:].numpy(), expected.numpy(), atol=1e-5)
-    with pytest.raises(ValueError, match="numObservations"):
-        make(overrides=[T + "measureHeights=False"])  # 235 declared, 48 measured
+    with pytest.raises(ValueError, match="numObservations=235, but the task observes 48 values"):
+        make(overrides=[T + "measureHeights=False", "+task.env.numObservations=235"])  # 235 declared, 48 measured
 
 
 def test_full_size_map_gives_no_false_deep_contacts_far_from_its_centre():
@@ -344,7 +344,7 @@ def test_a_blown_up_world_respawns_on_its_cell_and_keeps_its_level(task):
     assert int(task.terrain_levels[bad]) == level
     offset = (task.sim.root_pos[bad, :2] - task.env_origins[bad, :2]).abs()
     assert bool((offset <= task.spawn_jitter + 1e-5).all()), offset
-    assert int(task.progress_buf[bad]) == 0 and not task.episode_sums[bad].any()
+    assert int(task.progress_buf[bad]) == 0 and not task.rewards.episode_sums[bad].any()
 
 
 def test_wrap_past_the_top_draws_every_level():
@@ -429,7 +429,7 @@ def test_training_logs_the_terrain_level(tmp_path, capsys):
 
 
 def test_terrain_type_plane_keeps_the_flat_ground():
-    t = make(overrides=[T + "type=plane", "task.env.numObservations=48", "task.env.numStates=55"])
+    t = make(overrides=[T + "type=plane", "+task.env.numObservations=48", "+task.env.numStates=55"])
     assert t.terrain is None
     assert int(t.sim.mj_model.geom_type[t.ground_geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
     obs = t.reset()

@@ -166,7 +166,7 @@ def test_hanging_small_swing_period_matches_formula():
 
 # ------------------------------------------------------------------------------------------------------ reward
 def test_reward_function_matches_numpy():
-    from examples.pendulum_task import compute_pendulum_reward
+    from examples.pendulum_task import compute_pendulum_reward, pendulum_fallen
 
     cfg = compose_config(TASK_ARGS).task.env
     scales = {k: float(v) for k, v in cfg.rewards.items()}
@@ -177,9 +177,11 @@ def test_reward_function_matches_numpy():
     velocity = rng.uniform(-10, 10, n).astype(np.float32)
     effort = rng.uniform(-1, 1, n).astype(np.float32)
     progress = rng.integers(0, max_len + 3, n)
-    rew, reset = compute_pendulum_reward(
-        angle=torch.from_numpy(angle), velocity=torch.from_numpy(velocity), effort=torch.from_numpy(effort),
-        progress_buf=torch.from_numpy(progress), fall_angle=fall_angle, max_episode_length=max_len, scales=scales)
+    # The task's fall test and reward, with VecTask's time limit (an episode ends when progress reaches cap - 1).
+    fell = pendulum_fallen(torch.from_numpy(angle), fall_angle)
+    rew = compute_pendulum_reward(angle=torch.from_numpy(angle), velocity=torch.from_numpy(velocity),
+                                  effort=torch.from_numpy(effort), fallen=fell, scales=scales)
+    reset = (fell | (torch.from_numpy(progress) >= max_len - 1)).long()
     ref_rew, ref_reset, fallen = pendulum_reward_reference(angle, velocity, effort, progress, fall_angle, max_len,
                                                            scales)
     assert fallen.any() and (~fallen).any() and (ref_reset & ~fallen).any() and (~ref_reset).any()
@@ -191,7 +193,8 @@ def test_reward_function_matches_numpy():
 
 def test_step_rewards_falls_and_timeouts():
     """In task.step: the reward of the reached state, a fall resets (not a timeout), the cap is a timeout."""
-    task = make_pendulum(4, "task.env.maxEpisodeLength=20")
+    task = make_pendulum(4, "task.env.episodeLength_s=0.4")  # 20 policy steps of 0.02 s
+    assert task.max_episode_length == 20
     scales = dict(task.reward_scales)
     task.reset()
     set_state(task, [0.1, -0.2, 0.99, 0.0], [0.0, 0.3, 6.0, 0.0])  # env 2 is about to fall
@@ -243,7 +246,7 @@ def test_short_training_writes_summary_and_checkpoint(tmp_path, run_args):
     assert on_disk["task"] == "Pendulum" and on_disk["num_envs"] == n and on_disk["iterations"] == iters
     assert on_disk["env_steps"] == iters * n * cfg.train.runner.num_steps_per_env
     assert math.isfinite(on_disk["mean_episode_reward"])
-    assert 1 <= on_disk["mean_episode_length"] <= cfg.task.env.maxEpisodeLength - 1
+    assert 1 <= on_disk["mean_episode_length"] <= round(cfg.task.env.episodeLength_s / 0.02) - 1
     assert summary["mean_episode_length"] == on_disk["mean_episode_length"]
     state = torch.load(run_dir / f"model_{iters}.pt", map_location="cpu", weights_only=False)
     first = [v for k, v in state["actor_state_dict"].items() if k.endswith(".weight")][0]

@@ -117,7 +117,7 @@ def test_observations_are_clipped_state_is_not(make_cartpole):
 
 @pytest.mark.parametrize("max_len", [5, 3])
 def test_time_outs_fire_at_the_step_limit(make_cartpole, max_len):
-    task = make_cartpole(4, overrides=[f"task.env.maxEpisodeLength={max_len}"])
+    task = make_cartpole(4, overrides=[f"task.env.episodeLength_s={max_len * 0.0166}"])  # max_len policy steps
     assert task.max_episode_length == max_len
     task.reset()
     progress = 0  # the IsaacGymEnvs rule, counted here independently
@@ -187,3 +187,28 @@ def test_control_frequency_inv_physics_steps_match_mujoco_c(make_cartpole, cfi):
         # ...and not the state after a different number of physics steps.
         q_wrong, _ = mj_step_batch(model, q0, v0, ctrl, nsteps=cfi + 1)
         assert np.abs(task.sim.qpos.numpy() - q_wrong).max() > 1e-3
+
+
+# ------------------------------------------------------------------------------------------- episode length
+@pytest.mark.parametrize("task_name, steps", [("Cartpole", 500), ("Ant", 1000)])
+def test_shipped_episode_lengths_in_seconds_keep_their_step_counts(task_name, steps):
+    # The counts the YAMLs gave in policy steps before env.episodeLength_s (maxEpisodeLength, episodeLength).
+    import isaacgymenvs_mw
+    task = isaacgymenvs_mw.make(task_name, num_envs=1, sim_device="cpu", rl_device="cpu")
+    assert task.max_episode_length == steps
+    assert task.max_episode_length_s == pytest.approx(steps * task.control_dt)
+
+
+@pytest.mark.parametrize("task_name, old, seconds", [("Cartpole", "maxEpisodeLength=500", "8.3"),
+                                                     ("Ant", "episodeLength=1000", "16.66")])
+def test_an_old_episode_length_key_is_refused_naming_the_new_one(task_name, old, seconds):
+    import isaacgymenvs_mw
+    key, steps = old.split("=")
+    with pytest.raises(ValueError, match=rf"^task\.env\.{key}={steps} is no longer read: give the episode length in "
+                                         rf"seconds, task\.env\.episodeLength_s: {seconds} \({steps} policy steps"):
+        isaacgymenvs_mw.make(task_name, num_envs=1, sim_device="cpu", rl_device="cpu", overrides=[f"+task.env.{old}"])
+
+
+def test_episode_length_rounds_up_to_whole_policy_steps(make_cartpole):
+    # 0.1 s of 0.0166 s steps is 6.02 steps: the episode is not cut short, so the cap is 7.
+    assert make_cartpole(2, overrides=["task.env.episodeLength_s=0.1"]).max_episode_length == 7

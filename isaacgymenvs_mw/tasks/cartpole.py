@@ -6,8 +6,8 @@ import math
 
 import torch
 
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
-from isaacgymenvs_mw.utils.config import whole_number
 
 
 class Cartpole(VecTask):
@@ -19,7 +19,6 @@ class Cartpole(VecTask):
         env = cfg["env"]
         self.reset_dist = float(env["resetDist"])
         self.max_push_effort = float(env["maxEffort"])
-        self.max_episode_length = whole_number(env.get("maxEpisodeLength", 500), "env.maxEpisodeLength", 2)
         self.reset_position_noise = float(env.get("resetPositionNoise", 0.1))
         self.reset_velocity_noise = float(env.get("resetVelocityNoise", 0.25))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
@@ -27,30 +26,26 @@ class Cartpole(VecTask):
         names = self.sim.dof_names
         self.cart_dof = names.index("slider_to_cart")
         self.pole_dof = names.index("cart_to_pole")
+        self.build_observation_layouts()
 
     def pre_physics_step(self, actions: torch.Tensor) -> None:
         self.sim.ctrl[:, 0] = actions[:, 0] * self.max_push_effort
 
-    def post_physics_step(self) -> None:
-        self.progress_buf += 1
-        self.compute_reward()
-        self.reset_idx(self.reset_buf != 0)
-        self.compute_observations()
+    def check_termination(self) -> torch.Tensor:
+        q = self.sim.dof_pos
+        return cartpole_failed(q[:, self.cart_dof], q[:, self.pole_dof], self.reset_dist)
 
     def compute_reward(self) -> None:
         q, qd = self.sim.dof_pos, self.sim.dof_vel
-        self.rew_buf[:], self.reset_buf[:] = compute_cartpole_reward(
-            cart_pos=q[:, self.cart_dof], cart_vel=qd[:, self.cart_dof],
-            pole_angle=q[:, self.pole_dof], pole_vel=qd[:, self.pole_dof],
-            reset_dist=self.reset_dist, progress_buf=self.progress_buf,
-            max_episode_length=self.max_episode_length,
-        )
+        self.rew_buf[:] = compute_cartpole_reward(cart_vel=qd[:, self.cart_dof], pole_angle=q[:, self.pole_dof],
+                                                  pole_vel=qd[:, self.pole_dof], failed=self.terminate_buf)
 
-    def compute_observations(self) -> None:
-        q, qd = self.sim.dof_pos, self.sim.dof_vel
-        self.obs_buf[:] = torch.stack(
-            (q[:, self.cart_dof], qd[:, self.cart_dof], q[:, self.pole_dof], qd[:, self.pole_dof]), dim=-1
-        )
+    def observation_terms(self) -> list[ObsTerm]:
+        q, qd, cart, pole = self.sim.dof_pos, self.sim.dof_vel, self.cart_dof, self.pole_dof
+        return [ObsTerm("cart_pos", 1, compute=lambda: q[:, cart:cart + 1]),     # m
+                ObsTerm("cart_vel", 1, compute=lambda: qd[:, cart:cart + 1]),    # m/s
+                ObsTerm("pole_angle", 1, compute=lambda: q[:, pole:pole + 1]),   # rad, 0 upright
+                ObsTerm("pole_vel", 1, compute=lambda: qd[:, pole:pole + 1])]    # rad/s
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         mask = self.env_mask(env_ids)
@@ -63,12 +58,13 @@ class Cartpole(VecTask):
         self.progress_buf.masked_fill_(mask, 0)
 
 
-def compute_cartpole_reward(cart_pos: torch.Tensor, cart_vel: torch.Tensor, pole_angle: torch.Tensor,
-                            pole_vel: torch.Tensor, reset_dist: float, progress_buf: torch.Tensor,
-                            max_episode_length: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Reward 1 - θ² - 0.01|ẋ| - 0.005|θ̇|, -2 on failure; reset on failure or at the last step."""
+def cartpole_failed(cart_pos: torch.Tensor, pole_angle: torch.Tensor, reset_dist: float) -> torch.Tensor:
+    """The cart left ±resetDist or the pole fell past horizontal."""
+    return (torch.abs(cart_pos) > reset_dist) | (torch.abs(pole_angle) > math.pi / 2)
+
+
+def compute_cartpole_reward(cart_vel: torch.Tensor, pole_angle: torch.Tensor, pole_vel: torch.Tensor,
+                            failed: torch.Tensor) -> torch.Tensor:
+    """Reward 1 - θ² - 0.01|ẋ| - 0.005|θ̇|, -2 on failure (IsaacGymEnvs' formula)."""
     reward = 1.0 - pole_angle * pole_angle - 0.01 * torch.abs(cart_vel) - 0.005 * torch.abs(pole_vel)
-    failed = (torch.abs(cart_pos) > reset_dist) | (torch.abs(pole_angle) > math.pi / 2)
-    reward = torch.where(failed, torch.full_like(reward, -2.0), reward)
-    reset = failed | (progress_buf >= max_episode_length - 1)
-    return reward, reset.long()
+    return torch.where(failed, torch.full_like(reward, -2.0), reward)

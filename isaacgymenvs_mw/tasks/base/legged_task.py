@@ -18,6 +18,7 @@ Without ``env.terrain`` (or with ``type: plane``) none of this runs: the flat ta
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
@@ -33,6 +34,7 @@ from isaacgymenvs_mw.sim import (
 from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
@@ -47,8 +49,6 @@ class LeggedTask(VecTask):
         self._init_terrain_config(env.get("terrain"))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
-        self.max_episode_length_s = float(env["episodeLength_s"])
-        self.max_episode_length = int(math.ceil(self.max_episode_length_s / self.control_dt))
         self._init_joint_settings(env)
         self._init_bodies(env["asset"])
         self._init_buffers(env)
@@ -238,14 +238,8 @@ class LeggedTask(VecTask):
         self._nominal_base_mass = float(self.sim.mj_model.body_mass[self.base_body])
 
     def _init_rewards(self, rew: dict) -> None:
-        available = sorted(name[len("_reward_"):] for name in dir(self) if name.startswith("_reward_"))
         scales = dict(rew["scales"])
-        unknown = [k for k in scales if k not in available]
-        if unknown:
-            raise ConfigError(f"env.rewards.scales.{unknown[0]}: unknown reward term (all unknown: {unknown}); "
-                              f"available terms: {available}")
         self.tracking_sigma = float(rew.get("trackingSigma", 0.25))
-        self.only_positive_rewards = bool(rew.get("onlyPositiveRewards", True))
         self.base_height_target = float(rew.get("baseHeightTarget", 0.5))
         self.air_time_target = float(rew.get("feetAirTimeTarget", 0.5))
         self.feet_clearance_target = float(rew.get("feetClearanceTarget", 0.08))
@@ -259,77 +253,51 @@ class LeggedTask(VecTask):
             picked = match_joint_values({p: True for p in patterns or []}, names, f"env.rewards.{key}")
             return torch.tensor([n in picked for n in names], device=self.device, dtype=torch.float)
 
+        # Scales are per second of policy time (legged_gym); legged_gym adds the termination term after the clamp
+        # at 0: a fall still costs something while every other step is clamped to nothing (as early on, when
+        # random actions cost more than tracking earns).
+        self.rewards = RewardTerms(self, scales, self.num_envs, self.device, dt=self.control_dt,
+                                   only_positive=bool(rew.get("onlyPositiveRewards", True)), unclamped=("termination",),
+                                   penalty_curriculum=rew.get("penaltyCurriculum"),
+                                   step_count=self.randomizer.step_count, key="env.rewards")
         self._deviation_mask = joint_mask("jointDeviationJoints", "joint_deviation")
         self._upper_body_mask = joint_mask("upperBodyJoints", "upper_body_posture")
-        # Zero-scale terms are not computed at all; the others are weighted by the policy dt (legged_gym).
-        active = [(name, float(s)) for name, s in scales.items() if float(s) != 0.0]
-        self.reward_names = [name for name, _ in active]
-        self.reward_fns = [getattr(self, f"_reward_{name}") for name in self.reward_names]
-        self.reward_weights = torch.tensor([s * self.control_dt for _, s in active], device=self.device)
-        # legged_gym adds the termination term after the clamp at 0: a fall still costs something while every
-        # other step is clamped to nothing (as early on, when random actions cost more than tracking earns).
-        self._clamped_terms = torch.tensor([name != "termination" for name in self.reward_names],
-                                           dtype=torch.float32, device=self.device)
-        # One column per active term: per-episode sums, kept as one tensor so bookkeeping is a few kernels.
-        self.episode_sums = torch.zeros(self.num_envs, len(active), device=self.device)
-        self._init_penalty_curriculum(rew.get("penaltyCurriculum"))
-
-    def _init_penalty_curriculum(self, cfg) -> None:
-        """Penalties (negative scales, termination aside) start at ``start`` x their scale and reach the full scale
-        linearly over ``steps`` env steps per env (Hwangbo et al. 2019's cost curriculum for ANYmal, made linear).
-        Early random actions then cost less than tracking earns: a clamped reward is not 0 from the start, and an
-        unclamped one does not make falling early the cheapest way out."""
-        self._penalty_curriculum = None
-        if cfg is None:
-            return
-        key = "env.rewards.penaltyCurriculum"
-        _require_keys(cfg, key, ("start", "steps"))
-        try:
-            start, steps = float(cfg["start"]), cfg["steps"]
-        except (TypeError, ValueError):
-            raise ConfigError(f"{key}.start must be a number in (0, 1], got {cfg['start']!r}") from None
-        if not 0.0 < start <= 1.0:
-            raise ConfigError(f"{key}.start must be in (0, 1] (the penalties' first scale factor), got {start}")
-        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-            raise ConfigError(f"{key}.steps must be a whole number >= 1 (env steps per env), got {steps!r}")
-        self._penalty_curriculum = (start, float(steps))
-        self._penalty_terms = (self.reward_weights < 0.0).float() * self._clamped_terms  # termination aside
-
-    def penalty_factor(self) -> torch.Tensor | float:
-        """The factor on the penalties now: 1 without a curriculum; counts the env steps the randomisation layer
-        counts (resumed from a checkpoint's training progress)."""
-        if self._penalty_curriculum is None:
-            return 1.0
-        start, steps = self._penalty_curriculum
-        progress = torch.clamp(self.randomizer.step_count / steps, max=1.0)
-        return start + (1.0 - start) * progress
 
     # ----------------------------------------------------------- observations
     def observation_terms(self) -> list[ObsTerm]:
         # Sensor noise per term comes from task.randomization_params.observations.terms (randomisation layer).
         s, nj = self.obs_scales, self.num_actions
         return [
-            ObsTerm("base_lin_vel", 3, s["linVel"]),    # body frame, m/s
-            ObsTerm("base_ang_vel", 3, s["angVel"]),    # body frame, rad/s
-            ObsTerm("projected_gravity", 3, 1.0),       # unit vector, body frame
-            ObsTerm("commands", 3),                     # vx, vy (linVel scale), yaw rate (angVel scale)
-            ObsTerm("dof_pos", nj, s["dofPos"]),        # minus the default pose
-            ObsTerm("dof_vel", nj, s["dofVel"]),
-            ObsTerm("actions", nj),                     # the action the drives received (delayed, if delayed)
+            ObsTerm("base_lin_vel", 3, s["linVel"], compute=lambda: self.base_lin_vel),  # body frame, m/s
+            ObsTerm("base_ang_vel", 3, s["angVel"], compute=lambda: self.base_ang_vel),  # body frame, rad/s
+            ObsTerm("projected_gravity", 3, compute=lambda: self.projected_gravity),  # unit vector, body frame
+            # vx, vy (linVel scale), yaw rate (angVel scale)
+            ObsTerm("commands", 3, compute=lambda: self.commands * self.commands_scale),
+            ObsTerm("dof_pos", nj, s["dofPos"], compute=lambda: self.sim.dof_pos - self.default_dof_pos),
+            ObsTerm("dof_vel", nj, s["dofVel"], compute=lambda: self.sim.dof_vel),
+            # the action the drives received (delayed, if delayed)
+            ObsTerm("actions", nj, compute=lambda: self.actions),
         ] + ([self._height_scan_term()] if self.terrain is not None and self.measure_heights else [])
 
     def _height_scan_term(self) -> ObsTerm:
-        # Clipped base height above each scan point minus scanHeightOffset (m), legged_gym's measurement.
-        return ObsTerm("height_scan", self.scan_points.shape[0], self.obs_scales["heightMeasurements"])
+        return ObsTerm("height_scan", self.scan_points.shape[0], self.obs_scales["heightMeasurements"],
+                       compute=self._height_scan)
+
+    def _height_scan(self) -> torch.Tensor:
+        """Base height above each scan point minus scanHeightOffset, clipped to ±1 m (legged_gym's measurement)."""
+        self.measured_heights[:] = self.scan_heights()
+        return (self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights).clamp(-1.0, 1.0)
 
     def state_terms(self) -> list[ObsTerm]:
         # The critic sees the noiseless policy observation plus what the policy cannot measure.
-        policy = [ObsTerm(t.name, t.size, t.scale) for t in self.observation_terms()]
+        n = self.num_envs
+        policy = [replace(t, noise=0.0) for t in self.observation_terms()]
         return policy + [
-            ObsTerm("ground_friction", 1),
-            ObsTerm("added_base_mass", 1),  # kg
-            ObsTerm("base_height", 1),      # m
-            ObsTerm("feet_contact", len(self.feet)),  # 1 where the foot's contact force exceeds 1 N
+            ObsTerm("ground_friction", 1, compute=lambda: self._ground_friction.expand(n, 1)),
+            ObsTerm("added_base_mass", 1, compute=lambda: (self._base_mass - self._nominal_base_mass).expand(n, 1)),
+            ObsTerm("base_height", 1, compute=lambda: self.sim.root_pos[:, 2:3]),  # m
+            # 1 where the foot's contact force exceeds 1 N
+            ObsTerm("feet_contact", len(self.feet), compute=lambda: self._feet_contact().float()),
         ] + ([self._height_scan_term()] if self.terrain is not None and not self.measure_heights else [])
 
     def evaluation_groups(self) -> dict[str, torch.Tensor]:
@@ -360,22 +328,16 @@ class LeggedTask(VecTask):
         self.actions[:] = actions
         self.sim.ctrl[:] = self.default_dof_pos + self.action_scale * actions
 
-    def post_physics_step(self) -> None:
-        self.progress_buf += 1
-        self._refresh_state()
-        self.check_termination()
-        self.compute_reward()
-        done = self.reset_buf != 0
-        self.reset_idx(done)
-        self._resample_commands((self.progress_buf % self.command_resample_steps == 0) & ~done)
-        self.compute_observations()  # reset_idx refreshed the base state of the envs it reset
+    def after_reset(self, new_episode: torch.Tensor) -> None:
+        # Commands run on a timer: the envs whose episode goes on draw new ones every resamplingTime_s.
+        self._resample_commands((self.progress_buf % self.command_resample_steps == 0) & ~new_episode)
         if self.record_eval_metrics:
             err = torch.norm(self.commands[:, :2] - self.base_lin_vel[:, :2], dim=1)
             self.extras["eval_metrics"] = {"lin_vel_tracking_error": err}
         self.last_actions[:] = self.actions
         self.last_dof_vel[:] = self.sim.dof_vel
 
-    def _refresh_state(self) -> None:
+    def refresh_state(self) -> None:
         q = self.sim.root_quat
         self.base_lin_vel[:] = quat_rotate_inverse(q, self.sim.root_lin_vel)
         self.base_ang_vel[:] = self.sim.root_ang_vel
@@ -383,59 +345,20 @@ class LeggedTask(VecTask):
         forces = self.sim.sensordata[:, self._contact_adr]  # (N, bodies, 3)
         self.contact_force_norm[:] = torch.norm(forces, dim=-1)
 
-    def check_termination(self) -> None:
+    def check_termination(self) -> torch.Tensor:
         hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)
         if self.termination_height is not None:
             hit |= self._base_height() < self.termination_height
-        # A world VecTask reset for a blown-up state sits in the model's initial pose, not on its spawn: reset it
-        # here as well, so that it respawns on its cell with fresh commands and its episode sums are reported.
-        hit |= self.nonfinite_buf
-        timeout = self.progress_buf >= self.max_episode_length - 1
-        self.reset_buf[:] = (hit | timeout).long()
-        self.terminated = hit & ~timeout
+        return hit
+
+    @property
+    def terminated(self) -> torch.Tensor:
+        """Failed this step, time-outs aside (legged_gym's termination), read by the termination and alive terms."""
+        return self.terminate_buf & (self.timeout_buf == 0)
 
     def compute_reward(self) -> None:
-        if not self.reward_fns:
-            self.rew_buf.zero_()
-            return
-        terms = torch.stack([fn() for fn in self.reward_fns], dim=1) * self.reward_weights
-        if self._penalty_curriculum is not None:
-            terms = terms * (1.0 + self._penalty_terms * (self.penalty_factor() - 1.0))
-        # A world that blew up this step earns nothing (VecTask zeroes its reward too); its terms read body states
-        # that are still NaN, and one NaN in the episode sums would stay there for the rest of the run.
-        terms = terms.masked_fill(self.nonfinite_buf.unsqueeze(1), 0.0)
-        self.episode_sums += terms
-        if self.only_positive_rewards:
-            clamped = terms @ self._clamped_terms
-            self.rew_buf[:] = clamped.clamp(min=0.0) + terms @ (1.0 - self._clamped_terms)
-        else:
-            self.rew_buf[:] = terms.sum(dim=1)
-
-    def compute_observations(self) -> None:
-        s = self.obs_scales
-        terms = [
-            self.base_lin_vel * s["linVel"],
-            self.base_ang_vel * s["angVel"],
-            self.projected_gravity,
-            self.commands * self.commands_scale,
-            (self.sim.dof_pos - self.default_dof_pos) * s["dofPos"],
-            self.sim.dof_vel * s["dofVel"],
-            self.actions,
-        ]
-        policy_scan, critic_scan = [], []  # both stay empty without terrain: the flat tasks' tensors as before
-        if self.terrain is not None:
-            self.measured_heights[:] = self.scan_heights()
-            below = self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights
-            scan = below.clamp(-1.0, 1.0) * s["heightMeasurements"]
-            (policy_scan if self.measure_heights else critic_scan).append(scan)
-        obs = torch.cat(terms + policy_scan, dim=-1)
-        if self.num_states:
-            feet_contact = self._feet_contact().float()
-            n = self.num_envs
-            self.states_buf[:] = torch.cat([obs, self._ground_friction.expand(n, 1),
-                                            (self._base_mass - self._nominal_base_mass).expand(n, 1),
-                                            self.sim.root_pos[:, 2:3], feet_contact] + critic_scan, dim=-1)
-        self.obs_buf[:] = obs  # the randomisation layer adds the observation noise
+        # A world that blew up this step earns nothing (VecTask zeroes its reward too).
+        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf)
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         mask = self.env_mask(env_ids)
@@ -469,12 +392,8 @@ class LeggedTask(VecTask):
         self.feet_stance_time *= rows
         self.last_contacts &= rows
         self.progress_buf.masked_fill_(mask, 0)
-        # Report the finished episodes' per-term sums (summed over envs; the learner divides by the count).
-        finished = torch.where(mask.unsqueeze(1), self.episode_sums, 0.0).sum(dim=0)
-        self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
-        self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
         # The base velocities and gravity the observation reads, for the new states (VecTask.reset observes next).
-        self._refresh_state()
+        self.refresh_state()
 
     def _init_heading_command(self, cfg) -> None:
         """env.commands.heading {range, stiffness}: the masked envs draw a world-frame heading (rad) instead of a

@@ -26,8 +26,8 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.rewards import RewardTerms, reward_methods
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
-from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
@@ -52,11 +52,10 @@ class LocomotionTask(VecTask):
                  virtual_screen_capture=False, force_render=False):
         self.cfg = cfg
         env = cfg["env"]
-        missing = [k for k in _SCALAR_KEYS + ("episodeLength", "target", "footContactSensors") if k not in env]
+        missing = [k for k in _SCALAR_KEYS + ("target", "footContactSensors") if k not in env]
         if missing:
             raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
         self.k = {key: float(env[key]) for key in _SCALAR_KEYS}
-        self.max_episode_length = whole_number(env["episodeLength"], "env.episodeLength", 2)
         self.record_eval_metrics = False  # evaluate() turns it on: extras["eval_metrics"] gets the forward speed
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
@@ -140,53 +139,36 @@ class LocomotionTask(VecTask):
         self.yaw = torch.zeros(n, device=dev)
         self.roll = torch.zeros(n, device=dev)
         self.angle_to_target = torch.zeros(n, device=dev)
-        self.reward_names = [name[len("_reward_"):] for name in dir(self) if name.startswith("_reward_")]
-        self.reward_fns = [getattr(self, f"_reward_{name}") for name in self.reward_names]
-        self.episode_sums = torch.zeros(n, len(self.reward_names), device=dev)
+        # Every _reward_ method is a term, its weight and sign inside it (IsaacGymEnvs' constants).
+        self.rewards = RewardTerms(self, dict.fromkeys(reward_methods(self), 1.0), n, dev)
 
     # ------------------------------------------------------------ observation
     def observation_terms(self) -> list[ObsTerm]:
-        k, n = self.k, self.num_actions
+        k, n, sim = self.k, self.num_actions, self.sim
         terms = [
-            ObsTerm("torso_height", 1),                              # m
-            ObsTerm("lin_vel", 3),                                   # torso frame, m/s
-            ObsTerm("ang_vel", 3, k["angularVelocityScale"]),        # torso frame, rad/s
-            ObsTerm("yaw", 1),                                       # rad, (-π, π]
-            ObsTerm("roll", 1),                                      # rad, (-π, π]
-            ObsTerm("angle_to_target", 1),                           # rad: heading error in the ground plane
-            ObsTerm("up_proj", 1),                                   # torso z axis · world up
-            ObsTerm("heading_proj", 1),                              # torso x axis · direction to the target
-            ObsTerm("dof_pos_scaled", n),                            # joint positions, limits -> ±1
-            ObsTerm("dof_vel", n, k["dofVelocityScale"]),            # rad/s
+            ObsTerm("torso_height", 1, compute=lambda: sim.root_pos[:, 2:3]),                         # m
+            ObsTerm("lin_vel", 3, compute=lambda: self.vel_loc),                                      # torso frame, m/s
+            ObsTerm("ang_vel", 3, k["angularVelocityScale"], compute=lambda: self.angvel_loc),        # rad/s
+            ObsTerm("yaw", 1, compute=lambda: self.yaw.unsqueeze(1)),                                 # rad, (-π, π]
+            ObsTerm("roll", 1, compute=lambda: self.roll.unsqueeze(1)),                               # rad, (-π, π]
+            # rad: heading error in the ground plane
+            ObsTerm("angle_to_target", 1, compute=lambda: self.angle_to_target.unsqueeze(1)),
+            ObsTerm("up_proj", 1, compute=lambda: self.up_proj.unsqueeze(1)),            # torso z axis · world up
+            ObsTerm("heading_proj", 1, compute=lambda: self.heading_proj.unsqueeze(1)),  # torso x axis · to target
+            ObsTerm("dof_pos_scaled", n, compute=self.dof_pos_scaled),                   # limits -> ±1
+            ObsTerm("dof_vel", n, k["dofVelocityScale"], compute=lambda: sim.dof_vel),   # rad/s
         ]
         if self.observe_dof_forces:
-            terms.append(ObsTerm("dof_force", n, k["contactForceScale"]))  # actuator torque per joint, N m
+            # Actuator torque per joint (N m); a reset keeps the previous step's forces until the next physics
+            # step: show none instead.
+            terms.append(ObsTerm("dof_force", n, k["contactForceScale"],
+                                 compute=lambda: sim.qfrc_actuator[:, 6:] * (self.progress_buf > 0).unsqueeze(1)))
         terms += [
-            ObsTerm("foot_forces", self.FOOT_SENSOR_DIM * self.num_feet, k["contactForceScale"]),  # N, N m
-            ObsTerm("actions", n),                                   # the last policy output
+            ObsTerm("foot_forces", self.FOOT_SENSOR_DIM * self.num_feet, k["contactForceScale"],  # N, N m
+                    compute=lambda: sim.sensordata[:, self._foot_columns]),
+            ObsTerm("actions", n, compute=lambda: self.actions),                                  # last policy output
         ]
         return terms
-
-    def compute_observations(self) -> None:
-        sim = self.sim
-        values = {
-            "torso_height": sim.root_pos[:, 2:3],
-            "lin_vel": self.vel_loc,
-            "ang_vel": self.angvel_loc,
-            "yaw": self.yaw.unsqueeze(1),
-            "roll": self.roll.unsqueeze(1),
-            "angle_to_target": self.angle_to_target.unsqueeze(1),
-            "up_proj": self.up_proj.unsqueeze(1),
-            "heading_proj": self.heading_proj.unsqueeze(1),
-            "dof_pos_scaled": self.dof_pos_scaled(),
-            "dof_vel": sim.dof_vel,
-            "foot_forces": sim.sensordata[:, self._foot_columns],
-            "actions": self.actions,
-        }
-        if self.observe_dof_forces:
-            # A reset keeps the previous step's actuator forces until the next physics step: show none instead.
-            values["dof_force"] = sim.qfrc_actuator[:, 6:] * (self.progress_buf > 0).unsqueeze(1)
-        self.obs_buf[:] = torch.cat([values[t.name] * t.scale for t in self.obs_layout.terms], dim=-1)
 
     def dof_pos_scaled(self) -> torch.Tensor:
         """Joint positions mapped linearly from [lower, upper] to [-1, 1] (IsaacGymEnvs' ``unscale``)."""
@@ -218,18 +200,13 @@ class LocomotionTask(VecTask):
         # The motors' gear turns a command into a torque; MuJoCo clamps the command to the actuator's ctrlrange.
         self.sim.ctrl[:] = actions * self.k["powerScale"]
 
-    def post_physics_step(self) -> None:
-        self.progress_buf += 1
-        self.randomize_buf += 1
+    def refresh_state(self) -> None:
         self._refresh_torso_state()
         self.progress_speed[:] = self._speed_toward_target()
         self.prev_xy[:] = self.sim.root_pos[:, :2]
-        self.compute_reward()
         if self.record_eval_metrics:
             # Speed of the torso along +x (world frame, m/s), before any reset replaces the state.
             self.extras["eval_metrics"] = {"forward_speed": self.sim.root_lin_vel[:, 0].clone()}
-        self.reset_idx(self.reset_buf != 0)
-        self.compute_observations()  # reset_idx refreshed the torso state of the envs it reset
 
     def _speed_toward_target(self) -> torch.Tensor:
         """The drop in horizontal distance to the target over the step, / policy dt (IsaacGymEnvs' potential
@@ -241,18 +218,15 @@ class LocomotionTask(VecTask):
         drop = torch.sum((now - before) * (a + b), dim=-1) / (torch.norm(a, dim=-1) + torch.norm(b, dim=-1))
         return drop / self.control_dt
 
+    def check_termination(self) -> torch.Tensor:
+        return self.sim.root_pos[:, 2] < self.k["terminationHeight"]
+
     def compute_reward(self) -> None:
-        terms = torch.stack([fn() for fn in self.reward_fns], dim=1)
-        fallen = self.sim.root_pos[:, 2] < self.k["terminationHeight"]
-        total = torch.where(fallen, torch.full_like(self.rew_buf, self.k["deathCost"]), terms.sum(dim=1))
-        # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it. A world
-        # that blew up earns nothing (its body states are NaN until the next physics step; VecTask zeroes its reward).
-        self.episode_sums += terms.masked_fill((fallen | self.nonfinite_buf).unsqueeze(1), 0.0)
+        # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it. A
+        # blown-up world earns nothing (its body states are NaN until the next physics step).
+        earned = self.rewards.compute(self.terminate_buf)
+        total = torch.where(self.terminate_buf, torch.full_like(self.rew_buf, self.k["deathCost"]), earned)
         self.rew_buf[:] = total * self.k["rewardScale"]
-        timeout = self.progress_buf >= self.max_episode_length - 1
-        # A blown-up world sits in the model's initial pose (VecTask reset it): reset it here too, so its episode
-        # sums are reported and its start is randomised like any other.
-        self.reset_buf[:] = (fallen | timeout | self.nonfinite_buf).long()
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         mask = self.env_mask(env_ids)
@@ -267,10 +241,6 @@ class LocomotionTask(VecTask):
         self.prev_xy.copy_(torch.where(mask.unsqueeze(1), self.start_pos[:2], self.prev_xy))
         self.actions.masked_fill_(mask.unsqueeze(1), 0.0)
         self.progress_buf.masked_fill_(mask, 0)
-        # The finished episodes' per-term sums (summed over envs; the learner divides by the episode count).
-        finished = torch.where(mask.unsqueeze(1), self.episode_sums, 0.0).sum(dim=0)
-        self.extras["episode_terms"] = dict(zip(self.reward_names, finished.unbind()))
-        self.episode_sums.masked_fill_(mask.unsqueeze(1), 0.0)
         # The torso state the observation reads, for the new states: VecTask.reset observes right after this, and
         # a stale first observation (the torso state from before the reset) made the first episodes fall more.
         self._refresh_torso_state()

@@ -8,8 +8,8 @@ description an exported policy carries.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Callable, Sequence
 
 import torch
 
@@ -23,15 +23,17 @@ class ObsTerm:
     Args:
         name: unique within its layout ("base_lin_vel", "dof_pos", ...).
         size: number of columns.
-        scale: factor the raw quantity is multiplied by before it is observed (documentation and export;
-            the task applies it when it computes the term).
+        scale: factor VecTask multiplies ``compute()``'s value by (also documentation and export).
         noise: half-width of the uniform noise added to the observed (scaled) value; 0 = none.
+        compute: what computes the raw (num_envs, size) value: a function or bound method without arguments.
+            None only for a task that fills its observation itself (the layout then documents it).
     """
 
     name: str
     size: int
     scale: float = 1.0
     noise: float = 0.0
+    compute: Callable[[], torch.Tensor] | None = field(default=None, compare=False, repr=False)
 
 
 class ObsLayout:
@@ -58,11 +60,11 @@ class ObsLayout:
         return [t.name for t in self.terms]
 
     def check(self, declared: int, key: str) -> None:
-        """Fail, naming ``key``, when the YAML's declared size is not the sum of the terms."""
+        """Fail, naming ``key``, when a size given in the YAML is not the sum of the terms."""
         if declared != self.size:
             parts = " + ".join(f"{t.name} {t.size}" for t in self.terms)
             raise ConfigError(f"{key}={declared}, but the task observes {self.size} values ({parts}); "
-                             f"set {key}: {self.size}")
+                             f"remove {key} (the size is derived from the terms) or set {key}: {self.size}")
 
     def noise_scale(self, device: torch.device | str) -> torch.Tensor:
         """(size,) uniform-noise half-widths, one per column."""
@@ -77,4 +79,5 @@ class ObsLayout:
 
     def describe(self) -> list[dict]:
         """The layout as plain data (name, size, scale, noise, first column), for logs and exported policies."""
-        return [{**asdict(t), "start": self.slices[t.name].start} for t in self.terms]
+        described = [f.name for f in fields(ObsTerm) if f.name != "compute"]
+        return [{**{k: getattr(t, k) for k in described}, "start": self.slices[t.name].start} for t in self.terms]

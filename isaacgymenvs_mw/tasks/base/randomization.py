@@ -16,13 +16,13 @@ masked torch work (no host sync), so the step stays capturable as a CUDA graph a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import torch
 
 from isaacgymenvs_mw.sim import InertiaConstants, Simulator, ground_geoms, model_names, name_matches
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.observations import ObsLayout
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 DISTRIBUTIONS = ("uniform", "gaussian", "loguniform")
@@ -175,7 +175,7 @@ class Randomizer:
     """The randomisation layer of one VecTask: parses the YAML, binds to the model, draws on the device.
 
     ``VecTask`` calls, in this order each step: ``before_physics`` (interval draws, pushes), ``actions`` (delay,
-    noise), the physics, the task's post-physics step (whose ``reset_idx`` is wrapped to call ``on_reset`` first),
+    noise), the physics, the task's post-physics step (whose resets call ``on_reset`` before the task's ``reset_idx``),
     ``observations`` (noise). All of it is masked torch work on the sim device.
     """
 
@@ -435,7 +435,7 @@ class Randomizer:
         bad = [n for n, v in terms.items() if not float(v) >= 0]
         if bad:
             raise ConfigError(f"{self.root}.observations.terms: noise of {bad} must be >= 0")
-        layout = ObsLayout([ObsTerm(t.name, t.size, t.scale, t.noise + float(terms.get(t.name, 0.0)) * abs(t.scale))
+        layout = ObsLayout([replace(t, noise=t.noise + float(terms.get(t.name, 0.0)) * abs(t.scale))
                             for t in layout.terms])
         scale = layout.noise_scale(self.device)
         self.term_noise = scale if bool((scale != 0).any()) else None
@@ -505,15 +505,3 @@ class Randomizer:
         lo, hi = int(self.delay_spec.lo), int(self.delay_spec.hi)
         new = self.nominal_delay + torch.randint(lo, hi + 1, (self.num_envs,), device=self.device)
         self.delay.copy_(torch.where(mask, new, self.delay))
-
-
-def wrap_reset(task: Any, on_reset: Callable[[torch.Tensor], None]) -> None:
-    """Make ``task.reset_idx`` draw the resetting worlds' randomised values before the task's own reset runs."""
-    task_reset_idx = task.reset_idx
-
-    def reset_idx(env_ids: torch.Tensor) -> None:
-        mask = task.env_mask(env_ids)
-        on_reset(mask)
-        task_reset_idx(mask)
-
-    task.reset_idx = reset_idx

@@ -1,24 +1,32 @@
 """VecTask: IsaacGymEnvs' vectorised-task contract over a batch of MuJoCo Warp worlds.
 
-A task subclasses VecTask and writes, in torch on ``self.device``:
-  * ``create_sim()``          -- optional; the default builds ``self.sim`` from the YAML ``env.asset``/``sim`` sections
-  * ``pre_physics_step(a)``   -- turn clipped actions into actuator commands (``self.sim.ctrl``)
-  * ``post_physics_step()``   -- ``progress_buf += 1``; rewards and ``reset_buf``; ``reset_idx``; observations
-  * ``reset_idx(env_mask)``   -- re-initialise the envs selected by a boolean mask of shape (num_envs,)
+The episode belongs to VecTask: ``env.episodeLength_s`` (seconds) becomes ``max_episode_length`` (policy steps), and
+one after-physics sequence (``post_physics_step``) runs every task:
+
+    progress_buf += 1 -> refresh_state() -> terminations: check_termination() | blown-up worlds, and time-outs
+    -> compute_reward() -> resets: the randomisation layer's on_reset, then reset_idx() -> after_reset()
+    -> compute_observations()
+
+A task writes, in torch on ``self.device``, the terms of that sequence, not the sequence:
+  * ``pre_physics_step(a)``    -- turn clipped actions into actuator commands (``self.sim.ctrl``)
+  * ``check_termination()``    -- the envs that failed this step (bool mask); default: none (time-outs only)
+  * ``compute_reward()``       -- fill ``rew_buf`` (``tasks/base/rewards.py`` sums named terms)
+  * ``reset_idx(env_mask)``    -- re-initialise the envs selected by a boolean mask of shape (num_envs,)
   * ``compute_observations()`` -- fill ``obs_buf`` (and ``states_buf`` when numStates > 0)
+  * optional ``refresh_state()`` (quantities the terms read) and ``after_reset(new_episode)`` (per-step bookkeeping
+    that must see the new episodes, e.g. commands resampled on a timer)
 
 Resets are selected by masks, not index lists, so that a step never waits on the GPU (``nonzero()`` would).
 On CUDA the post-physics work is compiled with torch.compile (``sim.compileStep``) and, with the pre-physics
 work, captured as CUDA graphs (``sim.captureStep``): the hooks must stay device-only tensor code.
 ``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
 A world whose state blew up (NaN/inf, or a speed past ``sim.simulator.DIVERGED_SPEED``) is put back in the
-model's initial pose before ``post_physics_step`` and marked in ``nonfinite_buf``; VecTask zeroes its reward and
-reports it as a reset (the periodic ``sim.overflowCheckInterval`` check warns naming the first diverging joint,
-``sim.stability.BlowupLog``). A task that decides its resets inside ``post_physics_step`` includes ``nonfinite_buf`` in
-them, so that its own ``reset_idx`` places the world and closes its episode in the same step (LeggedTask,
-LocomotionTask).
-With ``task.randomize: True`` the randomisation layer (``tasks/base/randomization.py``) wraps ``reset_idx`` so that
-the resetting worlds draw their randomised model values before the task's own reset runs.
+model's initial pose before the sequence runs and marked in ``nonfinite_buf``; the sequence counts it as a
+termination, so the task's own ``reset_idx`` places it and closes its episode in the same step, and VecTask zeroes
+its reward (the periodic ``sim.overflowCheckInterval`` check warns naming the first diverging joint,
+``sim.stability.BlowupLog``).
+A ported IsaacGymEnvs task may still override ``post_physics_step`` and set ``rew_buf`` / ``reset_buf`` itself; it
+then calls ``reset_envs(mask)`` (randomisation, then ``reset_idx``) where it resets.
 """
 
 from __future__ import annotations
@@ -50,7 +58,8 @@ from isaacgymenvs_mw.sim import (
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
-from isaacgymenvs_mw.tasks.base.randomization import Randomizer, wrap_reset
+from isaacgymenvs_mw.tasks.base.randomization import Randomizer
+from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
@@ -61,11 +70,13 @@ ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 REQUIRED_HOOKS = {
     "pre_physics_step": "it turns the policy's actions into actuator commands (self.sim.ctrl); only the task knows "
                         "what an action means",
-    "post_physics_step": "it computes rewards and resets after the physics (progress_buf += 1, rew_buf, reset_buf, "
-                         "reset_idx, compute_observations)",
+    "compute_reward": "it fills rew_buf after the physics (VecTask's post_physics_step calls it after the "
+                      "terminations and before the resets)",
     "compute_observations": "it fills obs_buf (and states_buf when numStates > 0); reset() and every step return "
                             "what it writes",
 }
+# Episode-length keys of earlier versions and of IsaacGymEnvs' tasks (policy steps): refused, naming the new key.
+OLD_EPISODE_KEYS = ("maxEpisodeLength", "episodeLength")
 
 
 class VecTask:
@@ -94,16 +105,17 @@ class VecTask:
 
         self.num_environments = _require_int(env, "numEnvs", minimum=1)
         self.num_agents = int(env.get("numAgents", 1))
-        self.num_observations = _require_int(env, "numObservations", minimum=1)
-        self.num_states = _require_int(env, "numStates", minimum=0, default=0)
+        # A task that declares its observation terms derives these sizes; a YAML value must then agree.
+        self.declares_layout = type(self).observation_terms is not VecTask.observation_terms
+        self._yaml_num_obs = _require_int(env, "numObservations", minimum=1, default=0 if self.declares_layout else None)
+        self._yaml_num_states = None if env.get("numStates") is None else _require_int(env, "numStates", minimum=0)
+        self.num_observations = self._yaml_num_obs
+        self.num_states = self._yaml_num_states or 0
         self.num_actions = _require_int(env, "numActions", minimum=1)
         self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
         self.clip_obs = _positive(env, "clipObservations", math.inf)
         self.clip_actions = _positive(env, "clipActions", math.inf)
         self.history_specs = parse_history(env)
-        if "critic" in self.history_specs and self.num_states == 0:
-            raise ConfigError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
-                             "policy observation, history included (env.history.policy)")
         self.obs_history: ObsHistory | None = None
         self.state_history: ObsHistory | None = None
 
@@ -127,6 +139,7 @@ class VecTask:
             raise RuntimeError(f"{type(self).__name__}.create_sim() must set self.sim")
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
+        self._set_episode_length(env)
         self.check_action_size()
         self.blowups = BlowupLog(self.sim)  # which joint ran away: named by the periodic check in step()
         self._setup_randomization()
@@ -136,10 +149,12 @@ class VecTask:
         self.set_viewer()
         self.allocate_buffers()
         self.obs_dict: dict[str, torch.Tensor] = {}
+        self.rewards: RewardTerms | None = None  # a task that sums named terms sets it (tasks/base/rewards.py)
         self.obs_layout: ObsLayout | None = None
         self.state_layout: ObsLayout | None = None
         self._layouts_built = False
-        self._build_history()  # a whole-vector history has its size now; a selection of terms waits for the layout
+        if not self.declares_layout:  # sizes from the YAML: known now (a layout waits for the task's own __init__)
+            self.build_observation_layouts()
 
     # --------------------------------------------------------------- building
     def create_sim(self) -> None:
@@ -231,7 +246,36 @@ class VecTask:
         self.randomizer.bind(self.sim)
         delay = self.cfg["env"].get("control", {}).get("actionDelay", 0)
         self.randomizer.setup_delay(whole_number(delay, "env.control.actionDelay", 0), self.num_actions)
-        wrap_reset(self, self.randomizer.on_reset)
+
+    def _set_episode_length(self, env: dict) -> None:
+        """``env.episodeLength_s`` -> ``max_episode_length`` policy steps, rounded up (an episode never ends before
+        the time asked for) after rounding off float noise, so that N steps given as N x control dt stay N steps."""
+        for old in OLD_EPISODE_KEYS:
+            if old in env:
+                try:
+                    hint = f"env.episodeLength_s: {float(env[old]) * self.control_dt:.6g}"
+                except (TypeError, ValueError):
+                    hint = "env.episodeLength_s (seconds)"
+                raise ConfigError(f"env.{old}={env[old]!r} is no longer read: give the episode length in seconds, "
+                                 f"{hint} ({env[old]} policy steps x control dt {self.control_dt:.6g} s)")
+        seconds = env.get("episodeLength_s")
+        if seconds is None:
+            if getattr(self, "max_episode_length", None) is None:  # a ported task may set the steps in code
+                raise ConfigError("env.episodeLength_s is required in the task YAML: the episode length in seconds "
+                                 f"(policy steps x control dt {self.control_dt:.6g} s)")
+            self.max_episode_length = int(self.max_episode_length)
+            self.max_episode_length_s = self.max_episode_length * self.control_dt
+            return
+        try:
+            self.max_episode_length_s = float(seconds)
+        except (TypeError, ValueError):
+            raise ConfigError(f"env.episodeLength_s={seconds!r} is invalid: give a number of seconds") from None
+        steps = math.ceil(round(self.max_episode_length_s / self.control_dt, 6)) if self.max_episode_length_s > 0 else 0
+        if steps < 2:
+            raise ConfigError(f"env.episodeLength_s={seconds} is {steps} policy step(s) of {self.control_dt:.6g} s; "
+                             f"give at least 2 steps ({2 * self.control_dt:.6g} s): an episode ends one step "
+                             "before the cap")
+        self.max_episode_length = steps
 
     def asset_path(self, asset_cfg: dict) -> Path:
         """``env.asset.assetRoot`` / ``assetFileName``. An empty root is the repository's ``assets/``; a relative
@@ -260,7 +304,7 @@ class VecTask:
 
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
-        self.obs_buf = torch.zeros((n, self.num_obs), device=dev, dtype=torch.float)
+        self.obs_buf = torch.zeros((n, self.num_observations), device=dev, dtype=torch.float)
         self.states_buf = torch.zeros((n, self.num_states), device=dev, dtype=torch.float)
         self.rew_buf = torch.zeros(n, device=dev, dtype=torch.float)
         self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
@@ -273,6 +317,7 @@ class VecTask:
         self._obs_out = torch.zeros_like(self.obs_buf)
         self._states_out = torch.zeros_like(self.states_buf)
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
+        self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
         self._graph_actions = torch.zeros((n, self.num_actions), device=dev, dtype=torch.float)
         self._step_graphs: tuple[torch.cuda.CUDAGraph, torch.cuda.CUDAGraph] | None = None
         self._step_graph_warmup = 3
@@ -312,6 +357,8 @@ class VecTask:
     # -------------------------------------------------------------- properties
     @property
     def observation_space(self) -> gym.Space:
+        if not self._layouts_built:
+            self.build_observation_layouts()
         return self.obs_space
 
     @property
@@ -328,6 +375,8 @@ class VecTask:
 
     @property
     def num_obs(self) -> int:
+        if not self._layouts_built:  # a declared layout gives the size once the task's __init__ has run
+            self.build_observation_layouts()
         return self.num_observations
 
     # ------------------------------------------------------------------ hooks
@@ -335,16 +384,70 @@ class VecTask:
         raise NotImplementedError(_hook_message(type(self), "pre_physics_step"))
 
     def post_physics_step(self) -> None:
-        raise NotImplementedError(_hook_message(type(self), "post_physics_step"))
+        """The after-physics sequence every task shares; tasks fill its terms (module docstring), not the order."""
+        self.progress_buf += 1
+        self.refresh_state()
+        # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
+        self.terminate_buf.copy_(self.check_termination() | self.nonfinite_buf)
+        timeout = self.progress_buf >= self.max_episode_length - 1
+        self.timeout_buf.copy_(timeout & ~self.nonfinite_buf)
+        self.reset_buf.copy_(self.terminate_buf | timeout)
+        self.compute_reward()
+        new_episode = self.reset_buf != 0
+        self.reset_envs(new_episode)
+        self.after_reset(new_episode)
+        self.compute_observations()
+
+    def refresh_state(self) -> None:
+        """Derive, after the physics, the quantities the terms read (base velocities, contact forces, ...)."""
+
+    def check_termination(self) -> torch.Tensor:
+        """(num_envs,) bool: the envs that failed this step; time-outs and blown-up worlds are VecTask's."""
+        return torch.zeros_like(self.nonfinite_buf)
+
+    def compute_reward(self) -> None:
+        raise NotImplementedError(_hook_message(type(self), "compute_reward"))
+
+    def reset_envs(self, env_ids: torch.Tensor) -> None:
+        """Reset the selected envs: the randomisation layer draws their new model values first (so the task's
+        reset sees the world it will run in), then the task's ``reset_idx``; the reward helper, when the task has
+        one, reports their episode sums (``extras["episode_terms"]``)."""
+        mask = self.env_mask(env_ids)
+        self.randomizer.on_reset(mask)
+        self.reset_idx(mask)
+        if self.rewards is not None:
+            self.extras["episode_terms"] = self.rewards.finish_episodes(mask)
 
     def reset_idx(self, env_ids: torch.Tensor) -> None:
         """Re-initialise the selected envs; the default does nothing (tasks override)."""
 
+    def after_reset(self, new_episode: torch.Tensor) -> None:
+        """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
+
     def compute_observations(self) -> None:
-        raise NotImplementedError(_hook_message(type(self), "compute_observations"))
+        """Fill ``obs_buf`` (and ``states_buf``) from the layouts, in term order: each term's ``compute()`` times its
+        scale. A term both groups observe is computed once. A task without a layout overrides this."""
+        if self.obs_layout is None:
+            raise NotImplementedError(_hook_message(type(self), "compute_observations"))
+        values: dict[str, torch.Tensor] = {}
+
+        def column_values(layout: ObsLayout) -> torch.Tensor:
+            parts = []
+            for term in layout.terms:
+                if term.name not in values:
+                    values[term.name] = term.compute()
+                parts.append(values[term.name] * term.scale)
+            return torch.cat(parts, dim=-1)
+
+        self.obs_buf[:] = column_values(self.obs_layout)
+        if self.state_layout is not None:
+            self.states_buf[:] = column_values(self.state_layout)
 
     def _check_required_hooks(self) -> None:
-        missing = [name for name in REQUIRED_HOOKS if getattr(type(self), name) is getattr(VecTask, name)]
+        supplied = {"compute_reward": type(self).post_physics_step is not VecTask.post_physics_step,
+                    "compute_observations": type(self).observation_terms is not VecTask.observation_terms}
+        missing = [name for name in REQUIRED_HOOKS if getattr(type(self), name) is getattr(VecTask, name)
+                   and not supplied.get(name, False)]
         if missing:
             raise NotImplementedError("; ".join(_hook_message(type(self), name) for name in missing))
 
@@ -367,40 +470,62 @@ class VecTask:
             )
 
     def observation_terms(self) -> list[ObsTerm] | None:
-        """The policy observation as named terms, in column order; None: the task declares no layout."""
+        """The policy observation as named terms (``ObsTerm(name, size, scale, noise, compute=...)``), in column
+        order; VecTask's ``compute_observations`` builds ``obs_buf`` from them and ``numObservations`` is their
+        total. None: the task declares no layout, fills ``obs_buf`` itself and gives ``numObservations``."""
         return None
 
     def state_terms(self) -> list[ObsTerm] | None:
-        """The privileged critic state (numStates > 0) as named terms; None: no layout declared."""
+        """The privileged critic state as named terms; ``numStates`` is their total (``numStates: 0`` in the YAML
+        turns the critic state off). None: no critic state, or one the task fills itself (``numStates`` > 0)."""
         return None
 
     def build_observation_layouts(self) -> None:
-        """Derive ``obs_layout`` / ``state_layout`` from the declared terms and check them against the YAML sizes.
+        """Derive ``obs_layout`` / ``state_layout`` and the sizes from the declared terms (a YAML size must agree),
+        then the buffers, spaces and history of those sizes.
 
-        ``reset()`` calls it; a task whose term sizes are known earlier may call it at the end of its
-        ``__init__`` so that a wrong size fails at construction.
+        ``reset()`` calls it; a task whose terms depend on its own ``__init__`` calls it at the end of that, so that
+        a wrong size fails at construction.
         """
         terms = self.observation_terms()
         if terms is not None:
             self.obs_layout = self.randomizer.with_term_noise(ObsLayout(terms))
-            self.obs_layout.check(self.num_obs, "env.numObservations")
-        terms = self.state_terms() if self.num_states > 0 else None
+            if self._yaml_num_obs:
+                self.obs_layout.check(self._yaml_num_obs, "env.numObservations")
+            self.num_observations = self.obs_layout.size
+        terms = self.state_terms() if self._yaml_num_states != 0 else None
         if terms is not None:
             self.state_layout = ObsLayout(terms)
-            self.state_layout.check(self.num_states, "env.numStates")
+            if self._yaml_num_states:
+                self.state_layout.check(self._yaml_num_states, "env.numStates")
+            self.num_states = self.state_layout.size
+        if "critic" in self.history_specs and self.num_states == 0:
+            raise ConfigError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
+                             "policy observation, history included (env.history.policy)")
+        if self.obs_buf.shape[1] != self.num_observations or self.states_buf.shape[1] != self.num_states:
+            self._resize_observation_buffers()
         self._layouts_built = True
         self._build_history()
+
+    def _resize_observation_buffers(self) -> None:
+        """Observation buffers and spaces of the derived sizes (before the first step, so before any capture)."""
+        n, dev = self.num_envs, self.device
+        self.obs_buf = torch.zeros((n, self.num_observations), device=dev, dtype=torch.float)
+        self.states_buf = torch.zeros((n, self.num_states), device=dev, dtype=torch.float)
+        self._obs_out = torch.zeros_like(self.obs_buf)
+        self._states_out = torch.zeros_like(self.states_buf)
+        self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
+        self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
 
     def _build_history(self) -> None:
         """``env.history``: stacked policy/critic inputs; the spaces (and so the networks) take the stacked sizes."""
         n, dev = self.num_envs, self.device
-        ready = lambda spec: spec is not None and (spec.terms is None or self._layouts_built)  # noqa: E731
         spec = self.history_specs.get("policy")
-        if ready(spec) and self.obs_history is None:
+        if spec is not None and self.obs_history is None:
             self.obs_history = ObsHistory(spec, self.num_obs, self.obs_layout, n, dev)
             self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_history.size,), dtype=np.float32)
         spec = self.history_specs.get("critic")
-        if ready(spec) and self.state_history is None:
+        if spec is not None and self.state_history is None:
             self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
             self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
 
@@ -581,7 +706,7 @@ class VecTask:
         """Reset every env and return the first observations (call once before stepping)."""
         if not self._layouts_built:
             self.build_observation_layouts()
-        self.reset_idx(self._all_envs)
+        self.reset_envs(self._all_envs)
         self._compute_checked_observations()
         self.randomizer.observations(self.obs_buf)
         return self._clamped_obs_dict(self._all_envs)
@@ -589,7 +714,7 @@ class VecTask:
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
-        self.reset_idx(done)
+        self.reset_envs(done)
         self.compute_observations()
         self.randomizer.observations(self.obs_buf)
         return self._clamped_obs_dict(done), done.nonzero(as_tuple=False).flatten()
