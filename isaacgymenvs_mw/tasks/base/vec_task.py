@@ -92,19 +92,17 @@ class VecTask:
         virtual_screen_capture: bool = False,
         force_render: bool = False,
     ) -> None:
+        # graphics_device_id, virtual_screen_capture and force_render are IsaacGymEnvs' signature; nothing here uses
+        # them (headless=False opens MuJoCo's viewer; capture_video records).
         self.cfg = config
         env = config["env"]
         self._check_required_hooks()
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
         self.device = self.sim_device
-        self.graphics_device_id = graphics_device_id
         self.headless = headless
-        self.virtual_screen_capture = virtual_screen_capture
-        self.force_render = force_render
 
         self.num_environments = _require_int(env, "numEnvs", minimum=1)
-        self.num_agents = int(env.get("numAgents", 1))
         # A task that declares its observation terms derives these sizes; a YAML value must then agree.
         self.declares_layout = type(self).observation_terms is not VecTask.observation_terms
         self._yaml_num_obs = _require_int(env, "numObservations", minimum=1, default=0 if self.declares_layout else None)
@@ -124,7 +122,6 @@ class VecTask:
         self.act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
 
         self.control_steps = 0
-        self.total_train_env_frames = 0
         sim_cfg = config.get("sim", {})
         _check_sim_keys(sim_cfg)
         warn_unused_ige_keys(env)
@@ -310,7 +307,6 @@ class VecTask:
         self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
         self.timeout_buf = torch.zeros(n, device=dev, dtype=torch.long)
         self.progress_buf = torch.zeros(n, device=dev, dtype=torch.long)
-        self.randomize_buf = torch.zeros(n, device=dev, dtype=torch.long)
         self.extras: dict[str, Any] = {}
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
         # Step outputs live in fixed buffers so that a captured step graph can write them.
@@ -755,7 +751,6 @@ class VecTask:
                 )
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
-        self.total_train_env_frames = env_frames
         # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
         self.randomizer.step_count.fill_(env_frames // self.num_envs)
 
