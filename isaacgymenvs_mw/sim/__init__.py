@@ -30,6 +30,7 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     GroundPlane,
     JointDrive,
     ModelRequest,
+    SceneAsset,
     SolverOptions,
     actuated_joints,
     build_model,
@@ -42,6 +43,16 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
 )
 from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
 from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
+from isaacgymenvs_mw.sim.request import (  # noqa: E402
+    SIM_KEYS,
+    asset_path,
+    check_sim_keys,
+    request_from_config,
+    sim_dt,
+    solver_options,
+    torque_speed_limits,
+)
+from isaacgymenvs_mw.sim.scene import AssetView  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
     TERRAIN_TYPES,
@@ -54,7 +65,16 @@ from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
 )
 
 __all__ = [
+    "AssetView",
     "DRIVE_MODES",
+    "SIM_KEYS",
+    "SceneAsset",
+    "asset_path",
+    "check_sim_keys",
+    "request_from_config",
+    "sim_dt",
+    "solver_options",
+    "torque_speed_limits",
     "GroundPlane",
     "InertiaConstants",
     "JointDrive",

@@ -20,6 +20,7 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
+from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
 from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
@@ -53,7 +54,6 @@ class JointDrive:
 @dataclass
 class GroundPlane:
     friction: float = 1.0
-    restitution: float = 0.0  # accepted for IsaacGymEnvs configs; MuJoCo contacts are inelastic by default
 
 
 @dataclass
@@ -71,6 +71,28 @@ class SolverOptions:
     ccd_tolerance: float | None = None  # None: MuJoCo's default (1e-6)
     impratio: float = 1.0
     enable_contacts: bool = True
+
+
+@dataclass
+class SceneAsset:
+    """One asset of a scene beside the main one (``env.assets.<name>``): attached to the main model with every
+    body, joint, geom, site, actuator and sensor name prefixed by ``prefix``.
+
+    Its own actuators and sensors come along (after the main asset's actuators); YAML drives are the main asset's
+    only. A free asset (``fix_base`` False) gets a free joint named ``<prefix>root`` unless its root body has one.
+    """
+
+    name: str
+    asset_file: Path
+    prefix: str
+    fix_base: bool = False
+    # The root body's pose in the world (w, x, y, z); None keeps the file's (as env.baseInitState for the main one).
+    pos: Sequence[float] | None = None
+    quat: Sequence[float] | None = None
+    # True: the asset's own contype/conaffinity stay; False: its geoms collide as the ground does (with the main
+    # asset, the ground and the other objects).
+    keep_asset_contacts: bool = False
+    spec: "mujoco.MjSpec | None" = None  # the parsed file (sim/request.py parses it once); None: parse asset_file
 
 
 @dataclass
@@ -100,14 +122,23 @@ class ModelRequest:
     keep_asset_contacts: bool = False
     # A generated height map (sim/terrain.py): the ground becomes a heightfield geom of it instead of a plane.
     terrain: "Terrain | None" = None
+    # The parsed asset_file (sim/request.py parses it once); None: build_model parses asset_file.
+    spec: "mujoco.MjSpec | None" = None
+    # Further assets of the scene (env.assets), attached in this order under their prefixes.
+    assets: Sequence[SceneAsset] = ()
+
+    def body_names(self) -> list[str]:
+        """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""
+        spec = self.spec if self.spec is not None else load_spec(self.asset_file, self.collapse_fixed_joints)
+        return [b.name for b in spec.bodies]
 
 
-def load_spec(asset_file: Path, collapse_fixed_joints: bool = True) -> mujoco.MjSpec:
-    """Parse a URDF or MJCF file; fail with the path when it does not exist."""
+def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "env.asset") -> mujoco.MjSpec:
+    """Parse a URDF or MJCF file; fail with the path when it does not exist (``key``: the YAML section naming it)."""
     asset_file = Path(asset_file)
     if not asset_file.is_file():
         raise MissingFileError(
-            f"Asset file not found: '{asset_file}'. Set env.asset.assetRoot / env.asset.assetFileName in the task "
+            f"Asset file not found: '{asset_file}'. Set {key}.assetRoot / {key}.assetFileName in the task "
             "YAML to an existing URDF or MJCF file."
         )
     spec = mujoco.MjSpec.from_file(str(asset_file))
@@ -192,31 +223,23 @@ def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> lis
 
 
 def build_model(request: ModelRequest) -> mujoco.MjModel:
-    """Compile the task's model: asset + base + ground + actuators + contact sensors + solver options."""
-    spec = load_spec(request.asset_file, request.collapse_fixed_joints)
+    """Compile the task's model: asset + base + ground + actuators + scene assets + contact sensors + solver
+    options."""
+    # A copy: building edits the spec, and the request's parsed spec must stay as the file says for a second build.
+    spec = request.spec.copy() if request.spec is not None else load_spec(request.asset_file,
+                                                                          request.collapse_fixed_joints)
     joints = movable_joint_names(spec)
-    root = _root_body(spec)
-    has_free_root = _check_joint_types(spec, request.asset_file, root)
-    if has_free_root and request.fix_base:
-        raise ConfigError(
-            f"{request.asset_file}: the root body '{root.name}' has a free joint (a floating base) but "
-            "env.asset.fixBaseLink is True; set fixBaseLink: False, or remove the free joint to weld it to the world"
-        )
-    if not request.fix_base:
-        if not has_free_root:
-            root.add_freejoint(name="root")
-        if request.base_init_pos is not None:
-            root.pos = list(request.base_init_pos)
-        if request.base_init_quat is not None:
-            root.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # replaces an euler/axisangle in the file
-            root.quat = list(request.base_init_quat)
+    free = not request.fix_base  # a fixed main base stays where its file puts it, whatever the request says
+    _place_root(spec, request.asset_file, request.fix_base, request.base_init_pos if free else None,
+                request.base_init_quat if free else None, "env.asset")
 
     collide_bits = _set_collision_filter(spec, request.self_collisions, request.keep_asset_contacts)
+    ground = []
     if request.ground is not None:
         parts = _terrain_parts(spec, request.terrain) if request.terrain is not None else [("ground", dict(
             type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 0.05]))]  # zero half-sizes: an infinite plane
         for name, shape in parts:
-            spec.worldbody.add_geom(
+            ground.append(spec.worldbody.add_geom(
                 name=name,
                 **shape,
                 friction=[request.ground.friction, 0.005, 0.0001],
@@ -227,7 +250,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
                 # settings count.
                 condim=1 if request.keep_asset_contacts else 3,
                 priority=0 if request.keep_asset_contacts else 1,
-            )
+            ))
 
     for name, value in request.armature.items():
         spec.joint(name).armature = float(value)
@@ -240,18 +263,29 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
 
     owned = actuated_joints(spec)
-    for name, drive in request.drives.items():
+    for name in request.drives:
         _check_joint(spec, name, "env.control.driveMode")
-        if drive.mode != "none" and name in owned:
-            raise ConfigError(
-                f"env.control.driveMode: joint '{name}' is already driven by the asset's actuator '{owned[name]}' "
-                f"({request.asset_file}); the asset's actuators are used as written, so remove the YAML drive for "
-                "this joint (defaultDriveMode applies only to joints the asset does not actuate)"
-            )
+    # The one drive check: a YAML drive on a joint the asset's own actuator drives would put a second actuator on
+    # it, and ctrl[:, i] would silently reach only one of the two.
+    clash = {j: owned[j] for j in request.drives if j in owned}
+    if clash:
+        raise ConfigError(
+            f"env.control.driveMode: joints {sorted(clash)} are already driven by the asset's own actuators "
+            f"({clash}); the asset's actuators are used as written, so remove these driveMode entries"
+        )
     for name in joints:
         _add_actuator(spec, name, request.drives.get(name, JointDrive()))
     _override_actuators(spec, request.gear, "env.control.gear", _set_gear)
     _override_actuators(spec, request.ctrl_range, "env.control.ctrlRange", _set_ctrl_range)
+
+    # After the main asset's actuators, so that its ctrl columns come first and the YAML's gear / ctrlRange
+    # patterns reach only them; the scene assets' own actuators follow, in env.assets order.
+    for asset in request.assets:
+        _attach(spec, asset)
+    if request.assets and request.keep_asset_contacts:
+        contype, conaffinity = _set_collision_filter(spec, False, True)  # now the objects' geoms count too
+        for geom in ground:
+            geom.contype, geom.conaffinity = contype, conaffinity
 
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
@@ -339,6 +373,44 @@ def _check_joint_types(spec: mujoco.MjSpec, asset_file: Path, root: mujoco.MjsBo
     if free_root and next(iter(root.joints)).type != mujoco.mjtJoint.mjJNT_FREE:
         raise ConfigError(f"{asset_file}: the free joint of root body '{root.name}' must be its first joint")
     return free_root
+
+
+def _place_root(spec: mujoco.MjSpec, asset_file: Path, fix_base: bool, pos: Sequence[float] | None,
+                quat: Sequence[float] | None, key: str) -> mujoco.MjsBody:
+    """Fixed or free root body (a free joint added where the asset has none) at ``pos`` / ``quat`` where given."""
+    root = _root_body(spec)
+    has_free_root = _check_joint_types(spec, asset_file, root)
+    if has_free_root and fix_base:
+        raise ConfigError(
+            f"{asset_file}: the root body '{root.name}' has a free joint (a floating base) but "
+            f"{key}.fixBaseLink is True; set fixBaseLink: False, or remove the free joint to weld it to the world"
+        )
+    if not fix_base and not has_free_root:
+        root.add_freejoint(name="root")
+    if pos is not None:
+        root.pos = list(pos)
+    if quat is not None:
+        root.alt.type = mujoco.mjtOrientation.mjORIENTATION_QUAT  # replaces an euler/axisangle in the file
+        root.quat = list(quat)
+    return root
+
+
+def _attach(spec: mujoco.MjSpec, asset: SceneAsset) -> None:
+    """Attach one scene asset's root body (and the actuators, sensors and assets that refer to its subtree) under
+    the world body, every name prefixed; record its name and prefix in the model."""
+    key = f"env.assets.{asset.name}"
+    # Fixed joints are collapsed (or not) as the main asset says: fusestatic is one compiler flag for the model.
+    child = asset.spec.copy() if asset.spec is not None else load_spec(asset.asset_file, spec.compiler.fusestatic,
+                                                                       key)
+    root = _place_root(child, asset.asset_file, asset.fix_base, asset.pos, asset.quat, key)
+    if not asset.keep_asset_contacts:
+        # Like the ground (bit 1 both ways): the main asset's geoms (conaffinity holds bit 1), the ground and the
+        # other objects all meet it.
+        for geom in child.geoms:
+            geom.contype = _GROUND_BIT
+            geom.conaffinity = _GROUND_BIT | _ROBOT_BIT
+    spec.worldbody.add_frame().attach_body(root, asset.prefix, "")
+    spec.add_text(name=f"{SCENE_TEXT_PREFIX}{asset.name}", data=asset.prefix)
 
 
 def _root_body(spec: mujoco.MjSpec) -> mujoco.MjsBody:

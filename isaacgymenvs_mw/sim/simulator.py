@@ -21,6 +21,7 @@ import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
+from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
 
@@ -158,19 +159,26 @@ class Simulator:
         self._zeroed_on_reset = [view for name, view in self._carried_state.items() if name != "qpos"]
         self._zeroed_on_reset += [self.sensordata, self.overflow]
 
-        self.floating_base = m.njnt > 0 and int(m.jnt_type[0]) == int(mujoco.mjtJoint.mjJNT_FREE)
+        # The main asset (env.asset) owns the unprefixed names and the first qpos columns; the Simulator's own
+        # dof and root views are its. Each env.assets entry has an AssetView (self.asset(name)).
+        prefixes = scene_prefixes(m, SCENE_TEXT_PREFIX)
+        self.assets = {name: AssetView(name, prefix, m, self.qpos, self.qvel, self.ctrl)
+                       for name, prefix in prefixes.items()}
+        main = main_joints(m, list(prefixes.values()))
+        self.floating_base = bool(main) and int(m.jnt_type[main[0]]) == int(mujoco.mjtJoint.mjJNT_FREE)
         q0, v0 = (7, 6) if self.floating_base else (0, 0)
-        self.dof_pos = self.qpos[:, q0:]
-        self.dof_vel = self.qvel[:, v0:]
+        q1, v1 = main_ends(m, main)
+        self.dof_pos = self.qpos[:, q0:q1]
+        self.dof_vel = self.qvel[:, v0:v1]
         if self.floating_base:
             self.root_pos = self.qpos[:, 0:3]
             self.root_quat = self.qpos[:, 3:7]  # (w, x, y, z)
             self.root_lin_vel = self.qvel[:, 0:3]  # world frame
             self.root_ang_vel = self.qvel[:, 3:6]  # body frame (MuJoCo free-joint convention)
 
-        self.dof_names = [
+        self.dof_names = [  # the main asset's hinge and slide joints: the columns of dof_pos
             mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
-            for j in range(m.njnt)
+            for j in main
             if int(m.jnt_type[j]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
         ]
         self.body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody)]
@@ -193,6 +201,13 @@ class Simulator:
     @property
     def num_dof(self) -> int:
         return self.dof_pos.shape[1]
+
+    def asset(self, name: str) -> AssetView:
+        """The views of scene asset ``name`` (an ``env.assets`` key): root pose and velocity of a free one, dof
+        and actuator columns of an articulated one (sim/scene.py)."""
+        if name not in self.assets:
+            raise KeyError(f"no scene asset named {name!r}; env.assets of this model: {list(self.assets)}")
+        return self.assets[name]
 
     @property
     def num_actuators(self) -> int:
@@ -351,31 +366,30 @@ class Simulator:
         root_lin_vel: torch.Tensor | None = None,
         root_ang_vel: torch.Tensor | None = None,
         refresh: bool = True,
+        asset: str | None = None,
     ) -> None:
         """Write state for the masked worlds only, then (``refresh``) recompute body poses from it.
 
         Each value is a full (num_worlds, ...) tensor; rows outside the mask are ignored. Selecting by mask keeps
         this free of host syncs. Root velocities: linear in the world frame, angular in the body frame.
         A caller that reads only qpos/qvel until the next physics step may skip the refresh.
+        ``asset``: the name of an ``env.assets`` entry whose state this is (``self.asset(name)``); None: the main
+        asset's (``env.asset``).
         """
         rows = mask.view(-1, 1)
-        pairs = [(self.dof_pos, dof_pos), (self.dof_vel, dof_vel)]
-        if self.floating_base:
-            pairs += [(self.root_pos, root_pos), (self.root_quat, root_quat),
-                      (self.root_lin_vel, root_lin_vel), (self.root_ang_vel, root_ang_vel)]
+        views = self if asset is None else self.asset(asset)
+        pairs = [(views.dof_pos, dof_pos), (views.dof_vel, dof_vel)]
+        if views.floating_base:
+            pairs += [(views.root_pos, root_pos), (views.root_quat, root_quat),
+                      (views.root_lin_vel, root_lin_vel), (views.root_ang_vel, root_ang_vel)]
         elif any(v is not None for v in (root_pos, root_quat, root_lin_vel, root_ang_vel)):
-            raise ValueError("root state written to a fixed-base model (env.asset.fixBaseLink is True)")
+            key = "env.asset.fixBaseLink" if asset is None else f"env.assets.{asset}.fixBaseLink"
+            raise ValueError(f"root state written to a fixed-base asset ({key} is True)")
         for view, value in pairs:
             if value is not None:
                 view.copy_(torch.where(rows, value, view))
         if refresh:
             self.refresh_kinematics()
-
-    def commit_model_changes(self) -> None:
-        """Recompute constants derived from masses, inertias, armature, ... after writing Model fields."""
-        with wp.ScopedDevice(self.wp_device):
-            mjw.set_const(self.model, self.data)
-        self.recapture()
 
     def joint_pd_gains(self) -> dict[str, tuple[float, float]]:
         """{joint: (stiffness, damping)} of the joints driven by position actuators (MuJoCo's kp and kv)."""

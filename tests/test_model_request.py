@@ -1,0 +1,179 @@
+"""Task YAML -> ModelRequest in the sim layer (issue 31): ``sim.request.request_from_config`` asks for the model
+that ``VecTask.model_request`` asked for before the move, on every shipped task YAML; the asset is parsed once; one
+drive check; name matching rules.
+
+Reference: tests/assets/model_requests.json, written from VecTask.model_request of commit 3b2a975 (before the move;
+``python tests/test_model_request.py --record`` rewrites it from whatever VecTask.model_request is now, so only run
+it while VecTask still has its own copy), and the live VecTask.model_request while it exists.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import mujoco
+import pytest
+from omegaconf import OmegaConf
+
+from conftest import TESTS_DIR
+from isaacgymenvs_mw.sim import build_model, request_from_config
+from isaacgymenvs_mw.sim import builder as builder_module
+from isaacgymenvs_mw.sim.builder import match_body_names, match_joint_values, name_matches
+from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+REPO = TESTS_DIR.parent
+ASSETS_DIR = REPO / "assets"
+RECORD = TESTS_DIR / "assets" / "model_requests.json"
+TASKS = sorted(p.stem for p in (REPO / "cfg" / "task").glob("*.yaml"))
+
+
+def task_cfg(name: str) -> dict:
+    cfg = compose_config([f"task={name}", "num_envs=2"])
+    return OmegaConf.to_container(cfg.task, resolve=True)
+
+
+def describe(request, torque_speed) -> dict:
+    """The request as plain data: every field VecTask.model_request set, paths relative to the repository."""
+    o = request.options
+    return {
+        "asset_file": str(Path(request.asset_file).resolve().relative_to(REPO)),
+        "fix_base": request.fix_base,
+        "collapse_fixed_joints": request.collapse_fixed_joints,
+        "self_collisions": request.self_collisions,
+        "drives": {j: [d.mode, d.stiffness, d.damping, d.torque_limit] for j, d in request.drives.items()},
+        "armature": {j: float(v) for j, v in request.armature.items()},
+        "joint_damping": {j: float(v) for j, v in request.joint_damping.items()},
+        "ground": None if request.ground is None else request.ground.friction,
+        "base_init_pos": None if request.base_init_pos is None else list(request.base_init_pos),
+        "base_init_quat": None if request.base_init_quat is None else list(request.base_init_quat),
+        "contact_bodies": list(request.contact_bodies),
+        "options": [o.dt, list(o.gravity), o.integrator, o.solver, o.cone, o.iterations, o.ls_iterations,
+                    o.ccd_iterations, o.ccd_tolerance, o.impratio, o.enable_contacts],
+        "effort_limits": dict(request.effort_limits),
+        "gear": {k: float(v) for k, v in request.gear.items()},
+        "ctrl_range": {k: [float(x) for x in v] for k, v in request.ctrl_range.items()},
+        "keep_asset_contacts": request.keep_asset_contacts,
+        "torque_speed": {j: list(v) for j, v in torque_speed.items()},
+    }
+
+
+def vec_task_request(cfg: dict) -> dict:
+    """What VecTask.model_request asks for with this config, without building a task (no Simulator)."""
+    from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+
+    task = object.__new__(VecTask)
+    task.cfg = cfg
+    request = VecTask.model_request(task)
+    return describe(request, getattr(task, "_torque_speed", {}))
+
+
+def new_request(cfg: dict):
+    return request_from_config(cfg["env"], cfg.get("sim", {}), cfg.get("yaml_dir"), ASSETS_DIR)
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_request_matches_the_recorded_vec_task_request(task):
+    recorded = json.loads(RECORD.read_text())
+    assert task in recorded, f"{task}: no recorded request; record it (module docstring)"
+    assert describe(*new_request(task_cfg(task))) == recorded[task]
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_request_matches_vec_task_model_request_live(task):
+    cfg = task_cfg(task)
+    assert describe(*new_request(cfg)) == vec_task_request(cfg)
+
+
+def test_every_shipped_task_was_recorded_with_its_differences():
+    """The record covers all shipped tasks, and they differ (a record of one request repeated would prove little)."""
+    recorded = json.loads(RECORD.read_text())
+    assert set(recorded) == set(TASKS)
+    assert len({json.dumps(v, sort_keys=True) for v in recorded.values()}) >= 6
+
+
+def test_the_asset_is_parsed_once(monkeypatch):
+    """request_from_config parses the file, build_model reuses the parsed spec: one MjSpec.from_file call."""
+    cfg = task_cfg("Cartpole")
+    calls = []
+    real = mujoco.MjSpec.from_file
+
+    def counting(path, *args, **kwargs):
+        calls.append(path)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(builder_module.mujoco.MjSpec, "from_file", staticmethod(counting))
+    request, _ = new_request(cfg)
+    model = build_model(request)
+    build_model(request)  # a second build from the same request sees the file's spec, not the first build's edits
+    assert len(calls) == 1, calls
+    # Reference: the model compiled the old way (a fresh parse inside build_model).
+    request.spec = None
+    reference = build_model(request)
+    assert model.nq == reference.nq and model.nu == reference.nu and model.ngeom == reference.ngeom
+    assert mujoco.mj_sizeModel(model) == mujoco.mj_sizeModel(reference)
+
+
+def test_sim_dt_is_read_once_and_gives_the_timestep():
+    cfg = task_cfg("Cartpole")
+    cfg["sim"]["dt"] = 0.004
+    request, _ = new_request(cfg)
+    assert build_model(request).opt.timestep == pytest.approx(0.004)
+
+
+def test_a_drive_on_a_joint_the_asset_actuates_is_refused_once_at_build():
+    """The one drive check (build_model): the request passes the YAML's entry on, the build refuses it."""
+    cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
+                             "fixBaseLink": False},
+                   "control": {"driveMode": {"left_hip": "position"}}},
+           "sim": {}}
+    request, _ = new_request(cfg)
+    assert request.drives["left_hip"].mode == "position"
+    with pytest.raises(ConfigError, match=r"^env\.control\.driveMode: joints \['left_hip'\] are already driven by "
+                                          r"the asset's own actuators \(\{'left_hip': 'left_hip_motor'\}\)"):
+        build_model(request)
+
+
+def test_unknown_sim_key_is_refused_by_the_request():
+    cfg = task_cfg("Cartpole")
+    cfg["sim"]["substeps"] = 2
+    with pytest.raises(ConfigError, match=r"^sim: unknown key\(s\) \['substeps'\]"):
+        new_request(cfg)
+
+
+# ------------------------------------------------------------------------------------------------- name matching
+NAMES = ["LF_HAA", "LF_HFE", "RF_HAA", "base", "LF_FOOT"]
+
+
+def test_body_patterns_match_whole_names():
+    """Bodies: a pattern is a regular expression that must match the whole name (re.fullmatch)."""
+    assert match_body_names([".*_FOOT"], NAMES, "k") == ["LF_FOOT"]
+    assert match_body_names(["base"], NAMES, "k") == ["base"]
+    with pytest.raises(ConfigError, match="'FOOT' matches no body"):
+        match_body_names(["FOOT"], NAMES, "k")  # found inside LF_FOOT, but not the whole name
+
+
+def test_joint_patterns_match_exact_names_then_anywhere_in_the_name():
+    """Joints (and the randomisation's names): the exact name, else every name the expression is found in
+    (re.search, legged_gym's rule), as docs/config.md says. Checked against re from the standard library."""
+    import re
+
+    values = match_joint_values({"HAA": 1.0, "LF_HFE": 2.0}, NAMES, "k")
+    assert values == {n: 1.0 for n in NAMES if re.search("HAA", n)} | {"LF_HFE": 2.0}
+    assert name_matches("HAA", NAMES, "k", "joints") == [0, 2]
+    assert name_matches("LF_HAA", NAMES, "k", "joints") == [0]
+    with pytest.raises(ConfigError, match="'KFE' matches no joint"):
+        name_matches("KFE", NAMES, "k", "joints")
+
+
+def _record() -> None:
+    out = {task: vec_task_request(task_cfg(task)) for task in TASKS}
+    RECORD.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {RECORD} ({len(out)} tasks)")
+
+
+if __name__ == "__main__" and "--record" in sys.argv:
+    sys.path.insert(0, str(Path(__file__).parent))
+    _record()
