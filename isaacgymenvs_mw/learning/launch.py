@@ -84,11 +84,12 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
         if videos:
             _attach_video_recorder(cfg, task, run_dir / "videos")
-    print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
-          f"{max_iterations} iterations, run dir {run_dir}", flush=True)
     start_it = runner.current_learning_iteration
     interrupted: KeyboardInterrupt | None = None
     with _stop_on_signal(runner):
+        # Printed once a signal can only ask the run to stop: from here on the summary is always written.
+        print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
+              f"{max_iterations} iterations, run dir {run_dir}", flush=True)
         try:
             runner.learn(max_iterations,
                          init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
