@@ -27,7 +27,6 @@ from isaacgymenvs_mw.sim import (
     generate_terrain,
     ground_geoms,
     heightfield_grid,
-    load_spec,
     match_joint_values,
     parse_terrain_config,
 )
@@ -62,7 +61,7 @@ class LeggedTask(VecTask):
         request = super().model_request()
         env = self.cfg["env"]
         asset = env["asset"]
-        bodies = _body_names(load_spec(request.asset_file, request.collapse_fixed_joints))
+        bodies = request.body_names()  # from the request's parsed asset: no second parse
         sensed = list(request.contact_bodies)  # env.asset.contactBodies, then the bodies the rewards read
         for key in ("footBodies", "terminateContactBodies", "penalizeContactBodies"):
             for body in _select(asset.get(key, []), bodies, f"env.asset.{key}"):
@@ -552,10 +551,6 @@ class LeggedTask(VecTask):
     def _feet_lin_vel(self) -> torch.Tensor:
         """(N, feet, 3) world-frame linear velocity of each foot body's origin."""
         return self.sim.body_lin_vel(self._feet_body_ids)
-
-
-def _body_names(spec) -> list[str]:
-    return [b.name for b in spec.bodies]
 
 
 def _require_keys(cfg, key: str, names: tuple[str, ...]) -> None:

@@ -41,20 +41,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.sim import (
-    GroundPlane,
-    JointDrive,
-    ModelRequest,
-    Simulator,
-    SolverOptions,
-    actuated_joints,
-    build_model,
-    is_mjcf,
-    load_spec,
-    match_body_names,
-    match_joint_values,
-    movable_joint_names,
-)
+from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
@@ -62,7 +49,7 @@ from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
-from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
@@ -123,13 +110,13 @@ class VecTask:
 
         self.control_steps = 0
         sim_cfg = config.get("sim", {})
-        _check_sim_keys(sim_cfg)
+        check_sim_keys(sim_cfg)
         warn_unused_ige_keys(env)
         self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
-        self.randomizer = Randomizer(config.get("task"), float(sim_cfg.get("dt", SolverOptions().dt))
-                                     * self.control_freq_inv, self.num_environments, self.sim_device)
+        self.randomizer = Randomizer(config.get("task"), sim_dt(sim_cfg) * self.control_freq_inv,
+                                     self.num_environments, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
         if self.sim is None:
@@ -159,61 +146,12 @@ class VecTask:
         self.sim = self.make_simulator(self.model_request())
 
     def model_request(self) -> ModelRequest:
-        """What ``create_sim`` asks the sim layer to build, from ``env.asset``, ``env.control``, ``env.plane``,
-        ``env.baseInitState`` and ``sim``; tasks may extend it (more contact bodies, per-world fields, ...)."""
-        env, sim = self.cfg["env"], self.cfg.get("sim", {})
-        asset = env.get("asset", {})
-        asset_file = self.asset_path(asset)
-        spec = load_spec(asset_file, asset.get("collapseFixedJoints", True))
-        joints = movable_joint_names(spec)
-        control = env.get("control", {})
-        self._torque_speed = torque_speed_limits(control.get("torqueSpeed"), joints)
-        plane = env.get("plane", {})
-        ground = GroundPlane(float(plane.get("friction", 1.0))) if plane.get("enabled", False) else None
-        fix_base = bool(asset.get("fixBaseLink", True))
-        base_pos, base_quat = self._base_init_pose(env) if not fix_base else (None, None)
-        keep_contacts = bool(asset.get("keepAssetContacts", is_mjcf(asset_file)))
-        if keep_contacts and "selfCollisions" in asset:
-            raise ConfigError(
-                "env.asset.selfCollisions is set but the asset's own contact settings are kept "
-                "(env.asset.keepAssetContacts is True, the default for an MJCF): set keepAssetContacts: False to "
-                "use the framework's collision filter, or remove selfCollisions and say it in the MJCF"
-            )
-        return ModelRequest(
-            asset_file=asset_file,
-            fix_base=fix_base,
-            collapse_fixed_joints=bool(asset.get("collapseFixedJoints", True)),
-            self_collisions=bool(asset.get("selfCollisions", False)),
-            drives=joint_drives(control, joints, actuated_joints(spec), self._torque_speed),
-            armature=match_joint_values(asset.get("armature"), joints, "env.asset.armature"),
-            joint_damping=match_joint_values(asset.get("jointDamping"), joints, "env.asset.jointDamping"),
-            ground=ground,
-            base_init_pos=base_pos,
-            base_init_quat=base_quat,
-            contact_bodies=match_body_names(asset.get("contactBodies"), [b.name for b in spec.bodies],
-                                            "env.asset.contactBodies"),
-            options=solver_options(sim),
-            effort_limits={j: float(v) for j, v in match_joint_values(
-                control.get("effortLimit"), joints, "env.control.effortLimit").items()},
-            gear=dict(control.get("gear") or {}),
-            ctrl_range=dict(control.get("ctrlRange") or {}),
-            keep_asset_contacts=keep_contacts,
-        )
-
-    @staticmethod
-    def _base_init_pose(env: dict) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
-        """``env.baseInitState`` pos / rot (w, x, y, z) of a floating base; None where the YAML gives none (the
-        asset's root body pose is kept)."""
-        init = env.get("baseInitState") or {}
-        out = []
-        for key, size in (("pos", 3), ("rot", 4)):
-            value = init.get(key)
-            if value is not None and len(value) != size:
-                raise ConfigError(f"env.baseInitState.{key}={list(value)} is invalid: give {size} numbers")
-            out.append(None if value is None else tuple(float(v) for v in value))
-        if out[1] is not None and not math.isclose(sum(v * v for v in out[1]), 1.0, rel_tol=1e-3):
-            raise ConfigError(f"env.baseInitState.rot={list(out[1])} is not a unit quaternion (w, x, y, z)")
-        return out[0], out[1]
+        """What ``create_sim`` asks the sim layer to build: ``env.asset``, ``env.assets``, ``env.control``,
+        ``env.plane``, ``env.baseInitState`` and ``sim`` (``sim.request.request_from_config``); tasks may extend it
+        (more contact bodies, per-world fields, ...)."""
+        request, self._torque_speed = request_from_config(self.cfg["env"], self.cfg.get("sim", {}),
+                                                          self.cfg.get("yaml_dir"), ASSETS_DIR)
+        return request
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         sim = self.cfg.get("sim", {})
@@ -273,31 +211,6 @@ class VecTask:
                              f"give at least 2 steps ({2 * self.control_dt:.6g} s): an episode ends one step "
                              "before the cap")
         self.max_episode_length = steps
-
-    def asset_path(self, asset_cfg: dict) -> Path:
-        """``env.asset.assetRoot`` / ``assetFileName``. An empty root is the repository's ``assets/``; a relative
-        root is relative to the task YAML's folder (``yaml_dir``, recorded when train.py / ``make()`` compose the
-        config), or to the working directory for a config built by hand."""
-        name = asset_cfg.get("assetFileName")
-        if not name:
-            raise ConfigError("env.asset.assetFileName is not set in the task YAML")
-        root = str(asset_cfg.get("assetRoot") or "")
-        yaml_dir = self.cfg.get("yaml_dir")
-        if not root:
-            base, how = ASSETS_DIR, "empty assetRoot: the repository's assets/ folder"
-        elif Path(root).expanduser().is_absolute():
-            base, how = Path(root).expanduser(), "absolute assetRoot"
-        elif yaml_dir:
-            base, how = Path(yaml_dir) / root, f"relative assetRoot, resolved against the task YAML's folder {yaml_dir}"
-        else:
-            base, how = Path.cwd() / root, ("relative assetRoot, resolved against the working directory: the config "
-                                            "records no task YAML folder (task.yaml_dir)")
-        path = base / name
-        if not path.is_file():
-            raise MissingFileError(
-                f"env.asset: asset file '{path}' does not exist (assetRoot='{root}', assetFileName='{name}'; {how})"
-            )
-        return path
 
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
@@ -802,37 +715,6 @@ def _hook_message(cls: type, name: str) -> str:
     return f"{cls.__name__} must implement {name}(): {REQUIRED_HOOKS[name]}"
 
 
-def joint_drives(control: dict, joints: list[str], owned: dict[str, str],
-                 torque_speed: dict[str, tuple[float, float, float]]) -> dict[str, JointDrive]:
-    """``env.control`` drive settings per joint. ``defaultDriveMode`` covers the joints the asset does not actuate;
-    a ``driveMode`` entry on a joint the asset's own actuator drives is an error naming the joint. A torque-speed
-    limit (saturation, limit, no-load speed) caps the drive's force at its continuous limit."""
-    explicit = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode")
-    clash = {j: owned[j] for j in explicit if j in owned}
-    if clash:
-        raise ConfigError(
-            f"env.control.driveMode: joints {sorted(clash)} are already driven by the asset's own actuators "
-            f"({clash}); the asset's actuators are used as written, so remove these driveMode entries"
-        )
-    default_mode = str(control.get("defaultDriveMode", "none"))
-    stiffness = match_joint_values(control.get("stiffness"), joints, "env.control.stiffness", 0.0)
-    damping = match_joint_values(control.get("damping"), joints, "env.control.damping", 0.0)
-    return {
-        j: JointDrive(str(explicit.get(j, default_mode)), float(stiffness[j]), float(damping[j]),
-                      torque_speed[j][1] if j in torque_speed else None)
-        for j in joints if j not in owned
-    }
-
-
-# Every key the task YAML's `sim` section may hold (docs/config.md, "sim"); any other is a typo or a key of another
-# simulator, and is refused rather than ignored.
-SIM_KEYS = ("dt", "gravity", "integrator", "solver", "cone", "iterations", "ls_iterations", "ccd_iterations",
-            "ccd_tolerance", "impratio", "enableContacts", "nconmax", "njmax", "overflowCheckInterval", "useGraphs",
-            "captureStep", "compileStep", "deterministic")
-
-
-# IsaacGymEnvs `env` keys (dotted below env) that a ported YAML may carry: accepted, so that it runs, but nothing here
-# reads them; why not, for the one warning at task build.
 IGE_UNUSED_ENV_KEYS = {
     "envSpacing": "each env is its own MuJoCo world, so there is no shared space to lay envs out in",
     "enableDebugVis": "there is no debug drawing (headless=False opens MuJoCo's viewer on env 0; capture_video records "
@@ -858,57 +740,6 @@ def warn_unused_ige_keys(env: dict) -> list[str]:
                       + "; ".join(f"env.{k} ({IGE_UNUSED_ENV_KEYS[k]})" for k in present)
                       + ". Remove them from the task YAML to silence this.", RuntimeWarning, stacklevel=3)
     return present
-
-
-def _check_sim_keys(sim: dict) -> None:
-    unknown = sorted(str(k) for k in sim if k not in SIM_KEYS)
-    if unknown:
-        raise ConfigError(f"sim: unknown key(s) {unknown} (IsaacGymEnvs' PhysX keys such as physx, substeps and "
-                         f"use_gpu_pipeline have no counterpart here); valid keys: {list(SIM_KEYS)}")
-
-
-def solver_options(sim: dict) -> SolverOptions:
-    """The task YAML ``sim`` section as solver options (IsaacGymEnvs' ``dt`` and ``gravity`` keep their names)."""
-    defaults = SolverOptions()
-    return SolverOptions(
-        dt=float(sim.get("dt", defaults.dt)),
-        gravity=tuple(sim.get("gravity", defaults.gravity)),
-        integrator=str(sim.get("integrator", defaults.integrator)),
-        solver=str(sim.get("solver", defaults.solver)),
-        cone=str(sim.get("cone", defaults.cone)),
-        iterations=int(sim.get("iterations", defaults.iterations)),
-        ls_iterations=int(sim.get("ls_iterations", defaults.ls_iterations)),
-        ccd_iterations=None if sim.get("ccd_iterations") is None else int(sim["ccd_iterations"]),
-        ccd_tolerance=None if sim.get("ccd_tolerance") is None else float(sim["ccd_tolerance"]),
-        impratio=float(sim.get("impratio", defaults.impratio)),
-        enable_contacts=bool(sim.get("enableContacts", defaults.enable_contacts)),
-    )
-
-
-def torque_speed_limits(cfg: dict | None, joints: list[str]) -> dict[str, tuple[float, float, float]]:
-    """``env.control.torqueSpeed`` per joint: (saturation torque, torque limit, no-load speed); {} when absent."""
-    if not cfg:
-        return {}
-    key = "env.control.torqueSpeed"
-    unknown = sorted(set(cfg) - {"saturationTorque", "torqueLimit", "velocityLimit"})
-    if unknown:
-        raise ConfigError(f"{key}: unknown key(s) {unknown}; valid: saturationTorque, torqueLimit, velocityLimit")
-    for required in ("saturationTorque", "velocityLimit"):
-        if not cfg.get(required):
-            raise ConfigError(f"{key}.{required} is required ({{joint pattern: value}})")
-    sat = match_joint_values(cfg["saturationTorque"], joints, f"{key}.saturationTorque")
-    speed = match_joint_values(cfg["velocityLimit"], joints, f"{key}.velocityLimit")
-    limit = match_joint_values(cfg.get("torqueLimit"), joints, f"{key}.torqueLimit")
-    out = {}
-    for j in sat:
-        if j not in speed:
-            raise ConfigError(f"{key}.velocityLimit gives no value for joint '{j}', which has a saturationTorque")
-        values = (float(sat[j]), float(limit.get(j, sat[j])), float(speed[j]))
-        if not all(v > 0 for v in values):
-            raise ConfigError(f"{key}: joint '{j}' has {values} (saturationTorque, torqueLimit, velocityLimit); "
-                             "each must be > 0")
-        out[j] = values
-    return out
 
 
 def _require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:
