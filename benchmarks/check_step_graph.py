@@ -62,9 +62,9 @@ def main() -> None:
         worst["reset_mismatches"] += int((dg != de).sum())
     # GPU contact physics is not bit-deterministic, so observations of the two runs drift apart over the steps
     # (reported); rewards and resets are what must agree.
-    ok = graphed._step_graphs is not None and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0
+    ok = graphed.execution.graphs is not None and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0
     print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps, "randomization": preset,
-                      "graph_captured": graphed._step_graphs is not None,
+                      "graph_captured": graphed.execution.graphs is not None,
                       "step_execution": [graphed.step_execution, eager.step_execution], **worst, "ok": ok}), flush=True)
     sys.exit(0 if ok else 1)
 

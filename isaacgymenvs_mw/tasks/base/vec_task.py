@@ -32,7 +32,6 @@ then calls ``reset_envs(mask)`` (randomisation, then ``reset_idx``) where it res
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -47,6 +46,7 @@ from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.step_execution import StepExecution
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -227,31 +227,11 @@ class VecTask:
         self._states_out = torch.zeros_like(self.states_buf)
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
-        self._graph_actions = torch.zeros((n, self.num_actions), device=dev, dtype=torch.float)
-        self._step_graphs: tuple[torch.cuda.CUDAGraph, torch.cuda.CUDAGraph] | None = None
-        self._step_graph_warmup = 3
-        self._step_graphs_wanted = (
-            bool(self.cfg.get("sim", {}).get("captureStep", True))
-            and self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == self.device
+        self.execution = StepExecution(
+            type(self).__name__, self._before_physics, self.sim.simulate, self._after_physics, self.cfg.get("sim", {}),
+            graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
+            action_shape=(n, self.num_actions), device=dev,
         )
-        self._after_physics_step = self._after_physics
-        self._step_compiled = self._compile_step_wanted()
-        if self._step_compiled:
-            # One compiled graph fuses the post-physics step's few hundred small kernels into a few dozen; on a
-            # GPU that work, not the launches, was what a step cost beyond the physics. Random draws stay
-            # torch's own (fallback_random), so a seed gives the numbers the eager step gives.
-            compiled = torch.compile(self._after_physics, dynamic=False, options={"fallback_random": True})
-
-            def compile_on_first_call() -> None:
-                # The first call compiles (about 15 s on a GPU host with cold caches, 2 s warm): say where the
-                # time of a run's first iteration went, then step with the compiled function alone.
-                started = time.perf_counter()
-                compiled()
-                print(f"[isaacgymenvs_mw] compiled {type(self).__name__}'s post-physics step (sim.compileStep) "
-                      f"in {time.perf_counter() - started:.1f} s", flush=True)
-                self._after_physics_step = compiled
-
-            self._after_physics_step = compile_on_first_call
 
     def set_viewer(self) -> None:
         """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
@@ -482,18 +462,7 @@ class VecTask:
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
-        if self._use_step_graphs():
-            self._graph_actions.copy_(actions)
-            if self._step_graphs is None:
-                self._capture_step_graphs()
-            before, after = self._step_graphs
-            before.replay()
-            self.sim.simulate()
-            after.replay()
-        else:
-            self._before_physics(actions)
-            self.sim.simulate()
-            self._after_physics_step()
+        self.execution.run(actions)  # pre-physics, physics, post-physics: eager, compiled or captured
         self.control_steps += 1
 
         self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
@@ -551,56 +520,8 @@ class VecTask:
 
     @property
     def step_execution(self) -> str:
-        """How the post-physics step runs: "eager", "compiled", "captured" or "compiled+captured"."""
-        parts = [name for name, on in (("compiled", self._step_compiled),
-                                       ("captured", self._step_graphs_wanted)) if on]
-        return "+".join(parts) or "eager"
-
-    def _compile_step_wanted(self) -> bool:
-        """``sim.compileStep``: True / False, or "auto" (the default): compiled where the step is captured (CUDA)."""
-        value = self.cfg.get("sim", {}).get("compileStep", "auto")
-        if value not in (True, False, "auto"):
-            raise ConfigError(f"sim.compileStep={value!r} is invalid: give True, False or auto")
-        if value != "auto":
-            return bool(value)
-        if not self._step_graphs_wanted:
-            return False
-        try:
-            from torch.utils._triton import has_triton  # torch's own probe for a usable Triton
-        except ImportError:  # a torch without that probe: compiling would not find Triton either
-            def has_triton() -> bool:
-                return False
-
-        if not has_triton():
-            warnings.warn("sim.compileStep=auto: Triton is not installed, so the post-physics step runs uncompiled "
-                          "(slower on GPU); `pip install triton` or set +task.sim.compileStep=False to silence this",
-                          RuntimeWarning, stacklevel=2)
-            return False
-        return True
-
-    def _use_step_graphs(self) -> bool:
-        """Step graphs: CUDA only, learner on the same GPU, after a few eager steps have compiled and warmed up."""
-        return self._step_graphs_wanted and self.control_steps >= self._step_graph_warmup
-
-    def _capture_step_graphs(self) -> None:
-        """Capture the torch work before and after the physics as two CUDA graphs (the physics is a third).
-
-        Each step then costs three graph launches instead of a few hundred kernel launches from Python.
-        """
-        before, after = torch.cuda.CUDAGraph(), torch.cuda.CUDAGraph()
-        torch.cuda.synchronize(self.device)
-        try:
-            with torch.cuda.graph(before):
-                self._before_physics(self._graph_actions)
-            with torch.cuda.graph(after, pool=before.pool()):
-                self._after_physics_step()
-        except Exception as err:
-            raise RuntimeError(
-                f"sim.captureStep: {type(self).__name__}'s step could not be captured as CUDA graphs ({err}). "
-                "A task whose post_physics_step syncs with the host or launches Warp kernels cannot be captured: "
-                "run with +task.sim.captureStep=False"
-            ) from err
-        self._step_graphs = (before, after)
+        """How the step's torch work runs: "eager", "compiled", "captured" or "compiled+captured"."""
+        return self.execution.mode
 
     def get_state(self) -> torch.Tensor:
         """The critic's input as the last step returned it (stacked when ``env.history.critic`` is set)."""
