@@ -16,23 +16,17 @@ A task writes, in torch on ``self.device``, the terms of that sequence, not the 
   * optional ``refresh_state()`` (quantities the terms read) and ``after_reset(new_episode)`` (per-step bookkeeping
     that must see the new episodes, e.g. commands resampled on a timer)
 
-Resets are selected by masks, not index lists, so that a step never waits on the GPU (``nonzero()`` would).
-On CUDA the post-physics work is compiled with torch.compile (``sim.compileStep``) and, with the pre-physics
-work, captured as CUDA graphs (``sim.captureStep``): the hooks must stay device-only tensor code.
-``reset_idx`` also accepts an index tensor, as IsaacGymEnvs code passes, and turns it into a mask.
-A world whose state blew up (NaN/inf, or a speed past ``sim.simulator.DIVERGED_SPEED``) is put back in the
-model's initial pose before the sequence runs and marked in ``nonfinite_buf``; the sequence counts it as a
-termination, so the task's own ``reset_idx`` places it and closes its episode in the same step, and VecTask zeroes
-its reward (the periodic ``sim.overflowCheckInterval`` check warns naming the first diverging joint,
-``sim.stability.BlowupLog``).
-A ported IsaacGymEnvs task may still override ``post_physics_step`` and set ``rew_buf`` / ``reset_buf`` itself; it
-then calls ``reset_envs(mask)`` (randomisation, then ``reset_idx``) where it resets.
+Resets are boolean masks (an index tensor, as IsaacGymEnvs passes, is turned into one): ``nonzero()`` would make
+the step wait on the GPU. On CUDA the step's torch work is compiled and captured (``step_execution.py``), so the
+hooks stay device-only tensor code. A world that blew up (NaN/inf, or a speed past ``DIVERGED_SPEED``) is put back
+in the model's initial pose and marked in ``nonfinite_buf``; the sequence counts it as a termination (the task's
+``reset_idx`` places it, its reward is zeroed; ``sim.stability.BlowupLog`` names the joint that ran away).
+A ported IsaacGymEnvs task may still override ``post_physics_step``; it then calls ``reset_envs(mask)`` itself.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +36,10 @@ import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
+from isaacgymenvs_mw.tasks.base.env_keys import episode_length, positive, require_int, warn_unused_ige_keys
 from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_groups import ObservationGroups
+from isaacgymenvs_mw.tasks.base.observations import ObsLayout
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.step_execution import StepExecution
@@ -62,23 +58,13 @@ REQUIRED_HOOKS = {
     "compute_observations": "it fills obs_buf (and states_buf when numStates > 0); reset() and every step return "
                             "what it writes",
 }
-# Episode-length keys of earlier versions and of IsaacGymEnvs' tasks (policy steps): refused, naming the new key.
-OLD_EPISODE_KEYS = ("maxEpisodeLength", "episodeLength")
 
 
-class VecTask:
+class VecTask(ObservationGroups):
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
 
-    def __init__(
-        self,
-        config: dict,
-        rl_device: str,
-        sim_device: str,
-        graphics_device_id: int,
-        headless: bool,
-        virtual_screen_capture: bool = False,
-        force_render: bool = False,
-    ) -> None:
+    def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
+                 virtual_screen_capture: bool = False, force_render: bool = False) -> None:
         # graphics_device_id, virtual_screen_capture and force_render are IsaacGymEnvs' signature; nothing here uses
         # them (headless=False opens MuJoCo's viewer; capture_video records).
         self.cfg = config
@@ -89,17 +75,17 @@ class VecTask:
         self.device = self.sim_device
         self.headless = headless
 
-        self.num_environments = _require_int(env, "numEnvs", minimum=1)
+        self.num_environments = require_int(env, "numEnvs", minimum=1)
         # A task that declares its observation terms derives these sizes; a YAML value must then agree.
         self.declares_layout = type(self).observation_terms is not VecTask.observation_terms
-        self._yaml_num_obs = _require_int(env, "numObservations", minimum=1, default=0 if self.declares_layout else None)
-        self._yaml_num_states = None if env.get("numStates") is None else _require_int(env, "numStates", minimum=0)
+        self._yaml_num_obs = require_int(env, "numObservations", minimum=1, default=0 if self.declares_layout else None)
+        self._yaml_num_states = None if env.get("numStates") is None else require_int(env, "numStates", minimum=0)
         self.num_observations = self._yaml_num_obs
         self.num_states = self._yaml_num_states or 0
-        self.num_actions = _require_int(env, "numActions", minimum=1)
-        self.control_freq_inv = _require_int(env, "controlFrequencyInv", minimum=1, default=1)
-        self.clip_obs = _positive(env, "clipObservations", math.inf)
-        self.clip_actions = _positive(env, "clipActions", math.inf)
+        self.num_actions = require_int(env, "numActions", minimum=1)
+        self.control_freq_inv = require_int(env, "controlFrequencyInv", minimum=1, default=1)
+        self.clip_obs = positive(env, "clipObservations", math.inf)
+        self.clip_actions = positive(env, "clipActions", math.inf)
         self.history_specs = parse_history(env)
         self.obs_history: ObsHistory | None = None
         self.state_history: ObsHistory | None = None
@@ -123,7 +109,8 @@ class VecTask:
             raise RuntimeError(f"{type(self).__name__}.create_sim() must set self.sim")
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
-        self._set_episode_length(env)
+        self.max_episode_length, self.max_episode_length_s = episode_length(
+            env, self.control_dt, getattr(self, "max_episode_length", None))
         self.check_action_size()
         self.blowups = BlowupLog(self.sim)  # which joint ran away: named by the periodic check in step()
         self._setup_randomization()
@@ -181,36 +168,6 @@ class VecTask:
         self.randomizer.bind(self.sim)
         delay = self.cfg["env"].get("control", {}).get("actionDelay", 0)
         self.randomizer.setup_delay(whole_number(delay, "env.control.actionDelay", 0), self.num_actions)
-
-    def _set_episode_length(self, env: dict) -> None:
-        """``env.episodeLength_s`` -> ``max_episode_length`` policy steps, rounded up (an episode never ends before
-        the time asked for) after rounding off float noise, so that N steps given as N x control dt stay N steps."""
-        for old in OLD_EPISODE_KEYS:
-            if old in env:
-                try:
-                    hint = f"env.episodeLength_s: {float(env[old]) * self.control_dt:.6g}"
-                except (TypeError, ValueError):
-                    hint = "env.episodeLength_s (seconds)"
-                raise ConfigError(f"env.{old}={env[old]!r} is no longer read: give the episode length in seconds, "
-                                 f"{hint} ({env[old]} policy steps x control dt {self.control_dt:.6g} s)")
-        seconds = env.get("episodeLength_s")
-        if seconds is None:
-            if getattr(self, "max_episode_length", None) is None:  # a ported task may set the steps in code
-                raise ConfigError("env.episodeLength_s is required in the task YAML: the episode length in seconds "
-                                 f"(policy steps x control dt {self.control_dt:.6g} s)")
-            self.max_episode_length = int(self.max_episode_length)
-            self.max_episode_length_s = self.max_episode_length * self.control_dt
-            return
-        try:
-            self.max_episode_length_s = float(seconds)
-        except (TypeError, ValueError):
-            raise ConfigError(f"env.episodeLength_s={seconds!r} is invalid: give a number of seconds") from None
-        steps = math.ceil(round(self.max_episode_length_s / self.control_dt, 6)) if self.max_episode_length_s > 0 else 0
-        if steps < 2:
-            raise ConfigError(f"env.episodeLength_s={seconds} is {steps} policy step(s) of {self.control_dt:.6g} s; "
-                             f"give at least 2 steps ({2 * self.control_dt:.6g} s): an episode ends one step "
-                             "before the cap")
-        self.max_episode_length = steps
 
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
@@ -313,24 +270,8 @@ class VecTask:
     def after_reset(self, new_episode: torch.Tensor) -> None:
         """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
 
-    def compute_observations(self) -> None:
-        """Fill ``obs_buf`` (and ``states_buf``) from the layouts, in term order: each term's ``compute()`` times its
-        scale. A term both groups observe is computed once. A task without a layout overrides this."""
-        if self.obs_layout is None:
-            raise NotImplementedError(_hook_message(type(self), "compute_observations"))
-        values: dict[str, torch.Tensor] = {}
-
-        def column_values(layout: ObsLayout) -> torch.Tensor:
-            parts = []
-            for term in layout.terms:
-                if term.name not in values:
-                    values[term.name] = term.compute()
-                parts.append(values[term.name] * term.scale)
-            return torch.cat(parts, dim=-1)
-
-        self.obs_buf[:] = column_values(self.obs_layout)
-        if self.state_layout is not None:
-            self.states_buf[:] = column_values(self.state_layout)
+    def missing_hook_message(self, name: str) -> str:
+        return _hook_message(type(self), name)
 
     def _check_required_hooks(self) -> None:
         supplied = {"compute_reward": type(self).post_physics_step is not VecTask.post_physics_step,
@@ -358,98 +299,10 @@ class VecTask:
                 f"(ctrl columns, name -> joint: {listing}); set env.numActions: {nu}, or change the drives"
             )
 
-    def observation_terms(self) -> list[ObsTerm] | None:
-        """The policy observation as named terms (``ObsTerm(name, size, scale, noise, compute=...)``), in column
-        order; VecTask's ``compute_observations`` builds ``obs_buf`` from them and ``numObservations`` is their
-        total. None: the task declares no layout, fills ``obs_buf`` itself and gives ``numObservations``."""
-        return None
-
-    def state_terms(self) -> list[ObsTerm] | None:
-        """The privileged critic state as named terms; ``numStates`` is their total (``numStates: 0`` in the YAML
-        turns the critic state off). None: no critic state, or one the task fills itself (``numStates`` > 0)."""
-        return None
-
-    def build_observation_layouts(self) -> None:
-        """Derive ``obs_layout`` / ``state_layout`` and the sizes from the declared terms (a YAML size must agree),
-        then the buffers, spaces and history of those sizes.
-
-        ``reset()`` calls it; a task whose terms depend on its own ``__init__`` calls it at the end of that, so that
-        a wrong size fails at construction.
-        """
-        terms = self.observation_terms()
-        if terms is not None:
-            self.obs_layout = self.randomizer.with_term_noise(ObsLayout(terms))
-            if self._yaml_num_obs:
-                self.obs_layout.check(self._yaml_num_obs, "env.numObservations")
-            self.num_observations = self.obs_layout.size
-        terms = self.state_terms() if self._yaml_num_states != 0 else None
-        if terms is not None:
-            self.state_layout = ObsLayout(terms)
-            if self._yaml_num_states:
-                self.state_layout.check(self._yaml_num_states, "env.numStates")
-            self.num_states = self.state_layout.size
-        if "critic" in self.history_specs and self.num_states == 0:
-            raise ConfigError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
-                             "policy observation, history included (env.history.policy)")
-        if self.obs_buf.shape[1] != self.num_observations or self.states_buf.shape[1] != self.num_states:
-            self._resize_observation_buffers()
-        self._layouts_built = True
-        self._build_history()
-
-    def _resize_observation_buffers(self) -> None:
-        """Observation buffers and spaces of the derived sizes (before the first step, so before any capture)."""
-        n, dev = self.num_envs, self.device
-        self.obs_buf = torch.zeros((n, self.num_observations), device=dev, dtype=torch.float)
-        self.states_buf = torch.zeros((n, self.num_states), device=dev, dtype=torch.float)
-        self._obs_out = torch.zeros_like(self.obs_buf)
-        self._states_out = torch.zeros_like(self.states_buf)
-        self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
-        self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
-
-    def _build_history(self) -> None:
-        """``env.history``: stacked policy/critic inputs; the spaces (and so the networks) take the stacked sizes."""
-        n, dev = self.num_envs, self.device
-        spec = self.history_specs.get("policy")
-        if spec is not None and self.obs_history is None:
-            self.obs_history = ObsHistory(spec, self.num_obs, self.obs_layout, n, dev)
-            self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.obs_history.size,), dtype=np.float32)
-        spec = self.history_specs.get("critic")
-        if spec is not None and self.state_history is None:
-            self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
-            self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
-
     def evaluation_groups(self) -> dict[str, torch.Tensor]:
         """Per-env labels by which test mode also reports its results (``per_<name>`` in eval.json), read when the
         evaluation starts. None by default; the terrain tasks group by curriculum level."""
         return {}
-
-    def deployment_info(self) -> dict[str, Any]:
-        """What a runtime needs to feed an exported policy and apply its actions (``learning/export.py`` adds the
-        versions). Tasks with joints add their joint names, default pose, action scale and PD gains."""
-        if not self._layouts_built:
-            self.build_observation_layouts()
-
-        def finite(x: float) -> float | None:  # JSON has no inf: "no clipping" is null
-            return x if math.isfinite(x) else None
-
-        def group(layout: ObsLayout | None, size: int, history: ObsHistory | None) -> dict[str, Any]:
-            return {"size": size if history is None else history.size, "frame_size": size,
-                    "terms": layout.describe() if layout is not None else None,
-                    "history": history.describe() if history is not None else {"length": 1}}
-
-        info: dict[str, Any] = {
-            "task": type(self).__name__,
-            "control_dt": self.control_dt,
-            "physics_dt": self.dt,
-            "decimation": self.control_freq_inv,
-            "num_actions": self.num_actions,
-            "clip_actions": finite(self.clip_actions),
-            "clip_observations": finite(self.clip_obs),
-            "observation": group(self.obs_layout, self.num_obs, self.obs_history),
-        }
-        if self.num_states > 0:
-            info["state"] = group(self.state_layout, self.num_states, self.state_history)
-        return info
 
     # ---------------------------------------------------------------- contract
     def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
@@ -523,12 +376,6 @@ class VecTask:
         """How the step's torch work runs: "eager", "compiled", "captured" or "compiled+captured"."""
         return self.execution.mode
 
-    def get_state(self) -> torch.Tensor:
-        """The critic's input as the last step returned it (stacked when ``env.history.critic`` is set)."""
-        if self.state_history is not None:
-            return self.state_history.out.to(self.rl_device, copy=True)
-        return torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs).to(self.rl_device)
-
     def zero_actions(self) -> torch.Tensor:
         return torch.zeros((self.num_envs, self.num_actions), dtype=torch.float32, device=self.rl_device)
 
@@ -549,46 +396,11 @@ class VecTask:
         self.randomizer.observations(self.obs_buf)
         return self._clamped_obs_dict(done), done.nonzero(as_tuple=False).flatten()
 
-    def _clamped_obs_dict(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The current observations, clamped; with ``env.history`` the ``new_episode`` envs' past is refilled."""
-        obs = torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs)
-        if self.obs_history is not None:
-            obs = self.obs_history.reset(obs, new_episode)
-        self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
-        if self.num_states > 0:
-            states = torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs)
-            if self.state_history is not None:
-                states = self.state_history.reset(states, new_episode)
-            self.obs_dict["states"] = states.to(self.rl_device, copy=True)
-        return self.obs_dict
-
-    def _compute_checked_observations(self) -> None:
-        """compute_observations(), failing clearly when numObservations / numStates disagree with what it writes."""
-        self.obs_buf.fill_(math.nan)
-        self.states_buf.fill_(math.nan)
-        try:
-            self.compute_observations()
-        except RuntimeError as err:
-            if "size" in str(err) or "shape" in str(err):
-                raise ConfigError(
-                    f"{type(self).__name__}: the observation it computes does not fit env.numObservations="
-                    f"{self.num_obs} / env.numStates={self.num_states} ({err})"
-                ) from err
-            raise
-        for key, buf, size in (("numObservations", self.obs_buf, self.num_obs),
-                               ("numStates", self.states_buf, self.num_states)):
-            written = (~torch.isnan(buf)).any(dim=0)
-            if size and not bool(written.all()):
-                raise ConfigError(
-                    f"{type(self).__name__}: env.{key}={size} but the task wrote only {int(written.sum())} "
-                    f"columns; set env.{key} to the size the task computes"
-                )
-
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
         # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
         self.randomizer.step_count.fill_(env_frames // self.num_envs)
 
-    def get_env_state(self) -> None:
+    def get_env_state(self) -> None:  # IsaacGymEnvs' checkpoint hooks: nothing beyond the policy to save
         return None
 
     def set_env_state(self, env_state: Any) -> None:
@@ -609,15 +421,9 @@ class VecTask:
             self.viewer = None
 
     # ------------------------------------------------------ forces on bodies (IsaacGym's force tensors)
-    def apply_body_forces(
-        self,
-        forces: torch.Tensor | None = None,
-        torques: torch.Tensor | None = None,
-        bodies: list[str] | list[int] | torch.Tensor | None = None,
-        positions: torch.Tensor | None = None,
-        frame: str = "world",
-        persist: bool = False,
-    ) -> None:
+    def apply_body_forces(self, forces: torch.Tensor | None = None, torques: torch.Tensor | None = None,
+                          bodies: list[str] | list[int] | torch.Tensor | None = None,
+                          positions: torch.Tensor | None = None, frame: str = "world", persist: bool = False) -> None:
         """Forces/torques (num_envs, len(bodies), 3) on bodies for the coming env step (``persist``: until
         ``clear_body_forces``), in the "world" or "body" frame, at the centre of mass or at ``positions``.
 
@@ -634,49 +440,3 @@ class VecTask:
 
 def _hook_message(cls: type, name: str) -> str:
     return f"{cls.__name__} must implement {name}(): {REQUIRED_HOOKS[name]}"
-
-
-IGE_UNUSED_ENV_KEYS = {
-    "envSpacing": "each env is its own MuJoCo world, so there is no shared space to lay envs out in",
-    "enableDebugVis": "there is no debug drawing (headless=False opens MuJoCo's viewer on env 0; capture_video records "
-                      "it)",
-    "enableCameraSensors": "IsaacGym's camera sensors are not made from this key",
-    "aggregateMode": "PhysX aggregates (broad-phase groups of an actor's bodies) have no MuJoCo counterpart",
-    "plane.staticFriction": "MuJoCo has one sliding friction per contact: set env.plane.friction",
-    "plane.dynamicFriction": "MuJoCo has one sliding friction per contact: set env.plane.friction",
-    "plane.restitution": "MuJoCo's contacts are soft constraints without a restitution coefficient",
-}
-
-
-def warn_unused_ige_keys(env: dict) -> list[str]:
-    """Warn once, naming every ``IGE_UNUSED_ENV_KEYS`` key present in the ``env`` section; returns them."""
-    present = []
-    for key in IGE_UNUSED_ENV_KEYS:
-        section, _, name = key.rpartition(".")
-        node = env.get(section) if section else env
-        if hasattr(node, "keys") and name in node:
-            present.append(key)
-    if present:
-        warnings.warn("IsaacGymEnvs key(s) with no effect here: "
-                      + "; ".join(f"env.{k} ({IGE_UNUSED_ENV_KEYS[k]})" for k in present)
-                      + ". Remove them from the task YAML to silence this.", RuntimeWarning, stacklevel=3)
-    return present
-
-
-def _require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:
-    if key not in section or section[key] is None:
-        if default is None:
-            raise ConfigError(f"env.{key} is required in the task YAML")
-        return default
-    return whole_number(section[key], f"env.{key}", minimum)
-
-
-def _positive(section: dict, key: str, default: float) -> float:
-    value = section.get(key, default)
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"env.{key}={section[key]!r} is invalid: give a number > 0") from None
-    if not value > 0:
-        raise ConfigError(f"env.{key}={value} is invalid: give a number > 0 (inf for no clipping)")
-    return value

@@ -1,0 +1,89 @@
+"""Reading VecTask's own keys of a task YAML's ``env`` section: the episode length, whole numbers and positive
+numbers with their one-line errors, and IsaacGymEnvs keys that have no counterpart here."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+# Episode-length keys of earlier versions and of IsaacGymEnvs' tasks (policy steps): refused, naming the new key.
+OLD_EPISODE_KEYS = ("maxEpisodeLength", "episodeLength")
+
+
+def episode_length(env: dict, control_dt: float, steps_in_code: int | None) -> tuple[int, float]:
+    """``env.episodeLength_s`` -> (policy steps, seconds), rounded up (an episode never ends before the time asked
+    for) after rounding off float noise, so that N steps given as N x control dt stay N steps. Seconds, not steps:
+    the duration stays the same when sim.dt or controlFrequencyInv change. A ported task without the key may set
+    ``max_episode_length`` (steps) in code before VecTask's constructor runs (``steps_in_code``)."""
+    for old in OLD_EPISODE_KEYS:
+        if old in env:
+            try:
+                hint = f"env.episodeLength_s: {float(env[old]) * control_dt:.6g}"
+            except (TypeError, ValueError):
+                hint = "env.episodeLength_s (seconds)"
+            raise ConfigError(f"env.{old}={env[old]!r} is no longer read: give the episode length in seconds, "
+                              f"{hint} ({env[old]} policy steps x control dt {control_dt:.6g} s)")
+    seconds = env.get("episodeLength_s")
+    if seconds is None:
+        if steps_in_code is None:
+            raise ConfigError("env.episodeLength_s is required in the task YAML: the episode length in seconds "
+                              f"(policy steps x control dt {control_dt:.6g} s)")
+        return int(steps_in_code), int(steps_in_code) * control_dt
+    try:
+        seconds = float(seconds)
+    except (TypeError, ValueError):
+        raise ConfigError(f"env.episodeLength_s={seconds!r} is invalid: give a number of seconds") from None
+    steps = math.ceil(round(seconds / control_dt, 6)) if seconds > 0 else 0
+    if steps < 2:
+        raise ConfigError(f"env.episodeLength_s={seconds} is {steps} policy step(s) of {control_dt:.6g} s; give at "
+                          f"least 2 steps ({2 * control_dt:.6g} s): an episode ends one step before the cap")
+    return steps, seconds
+
+
+IGE_UNUSED_ENV_KEYS = {
+    "envSpacing": "each env is its own MuJoCo world, so there is no shared space to lay envs out in",
+    "enableDebugVis": "there is no debug drawing (headless=False opens MuJoCo's viewer on env 0; capture_video records "
+                      "it)",
+    "enableCameraSensors": "IsaacGym's camera sensors are not made from this key",
+    "aggregateMode": "PhysX aggregates (broad-phase groups of an actor's bodies) have no MuJoCo counterpart",
+    "plane.staticFriction": "MuJoCo has one sliding friction per contact: set env.plane.friction",
+    "plane.dynamicFriction": "MuJoCo has one sliding friction per contact: set env.plane.friction",
+    "plane.restitution": "MuJoCo's contacts are soft constraints without a restitution coefficient",
+}
+
+
+def warn_unused_ige_keys(env: dict) -> list[str]:
+    """Warn once, naming every ``IGE_UNUSED_ENV_KEYS`` key present in the ``env`` section; returns them."""
+    present = []
+    for key in IGE_UNUSED_ENV_KEYS:
+        section, _, name = key.rpartition(".")
+        node = env.get(section) if section else env
+        if hasattr(node, "keys") and name in node:
+            present.append(key)
+    if present:
+        warnings.warn("IsaacGymEnvs key(s) with no effect here: "
+                      + "; ".join(f"env.{k} ({IGE_UNUSED_ENV_KEYS[k]})" for k in present)
+                      + ". Remove them from the task YAML to silence this.", RuntimeWarning, stacklevel=3)
+    return present
+
+
+def require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:
+    if key not in section or section[key] is None:
+        if default is None:
+            raise ConfigError(f"env.{key} is required in the task YAML")
+        return default
+    return whole_number(section[key], f"env.{key}", minimum)
+
+
+def positive(section: dict, key: str, default: float) -> float:
+    value = section.get(key, default)
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"env.{key}={section[key]!r} is invalid: give a number > 0") from None
+    if not value > 0:
+        raise ConfigError(f"env.{key}={value} is invalid: give a number > 0 (inf for no clipping)")
+    return value
