@@ -188,7 +188,7 @@ def test_zero_actions_stand_2s_with_ankles_above_the_bound():
     bound, _ = ankle_stiffness_bound()
     assert 300.0 > 2.5 * bound
     task = isaacgymenvs_mw.make("G1", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
-                                overrides=QUIET + AT_REST + ["task.env.control.stiffness.ankle=300.0",
+                                overrides=QUIET + AT_REST + ["task.env.control.stiffness={.*_ankle_.*:300.0}",
                                                              "task.sim.dt=0.0025", "task.env.controlFrequencyInv=8"])
     task.reset_idx(torch.arange(1))
     m = task.sim.mj_model

@@ -155,17 +155,34 @@ def test_body_patterns_match_whole_names():
         match_body_names(["FOOT"], NAMES, "k")  # found inside LF_FOOT, but not the whole name
 
 
-def test_joint_patterns_match_exact_names_then_anywhere_in_the_name():
-    """Joints (and the randomisation's names): the exact name, else every name the expression is found in
-    (re.search, legged_gym's rule), as docs/config.md says. Checked against re from the standard library."""
-    import re
-
-    values = match_joint_values({"HAA": 1.0, "LF_HFE": 2.0}, NAMES, "k")
-    assert values == {n: 1.0 for n in NAMES if re.search("HAA", n)} | {"LF_HFE": 2.0}
-    assert name_matches("HAA", NAMES, "k", "joints") == [0, 2]
+def test_joint_patterns_match_whole_names():
+    """Joints (and the randomisation's names, the actuator overrides): the same rule as bodies, a regular expression
+    that must match the whole name (re.fullmatch), as docs/config.md says. A key that is a joint's own name beats the
+    other patterns; among patterns the first in YAML order wins."""
+    values = match_joint_values({".*_HAA": 1.0, "LF_HFE": 2.0, "LF_.*": 3.0}, NAMES, "k")
+    assert values == {"LF_HAA": 1.0, "LF_HFE": 2.0, "RF_HAA": 1.0, "LF_FOOT": 3.0}
+    assert match_joint_values({"LF_.*": 3.0, "LF_HFE": 2.0}, NAMES, "k")["LF_HFE"] == 2.0  # the own name wins
+    assert name_matches(".*_HAA", NAMES, "k", "joints") == [0, 2]
     assert name_matches("LF_HAA", NAMES, "k", "joints") == [0]
-    with pytest.raises(ConfigError, match="'KFE' matches no joint"):
-        name_matches("KFE", NAMES, "k", "joints")
+    assert name_matches("L._H..|base", NAMES, "k", "joints") == [0, 1, 3]
+
+
+def test_a_substring_pattern_selects_nothing_and_says_so():
+    """'HAA' used to select every *_HAA joint (the name contained it); under the full-match rule it selects nothing,
+    and the error is one line naming the key, the pattern and the names."""
+    for select in (lambda: match_joint_values({"HAA": 1.0}, NAMES, "env.control.stiffness"),
+                   lambda: name_matches("HAA", NAMES, "env.control.stiffness", "joints")):
+        with pytest.raises(ConfigError) as err:
+            select()
+        message = str(err.value)
+        assert "\n" not in message
+        assert message.startswith("env.control.stiffness: 'HAA' matches no joint (a pattern must match the whole name)")
+        assert str(NAMES) in message
+    with pytest.raises(ConfigError, match=r"^k: 'FOOT' matches no body \(a pattern must match the whole name\); "
+                                          r"bodies: \['LF_HAA'"):
+        match_body_names(["FOOT"], NAMES, "k")
+    with pytest.raises(ConfigError, match=r"k: '\(' is not a valid regular expression"):
+        name_matches("(", NAMES, "k", "joints")
 
 
 def _record() -> None:

@@ -166,16 +166,13 @@ def actuated_joints(spec: mujoco.MjSpec) -> dict[str, str]:
 
 
 def match_body_names(patterns: Sequence[str] | str | None, body_names: Sequence[str], key: str) -> list[str]:
-    """Bodies whose names match any of the regular expressions (full match), in model order; a pattern that
-    matches no body is an error naming ``key``."""
+    """Bodies that any of the patterns selects (``name_matches``: a full match), in model order; a pattern that
+    selects no body is an error naming ``key``."""
     if isinstance(patterns, str):
         patterns = [patterns]
     out: list[str] = []
     for pattern in patterns or []:
-        hits = [n for n in body_names if re.fullmatch(pattern, n)]
-        if not hits:
-            raise ConfigError(f"{key}: '{pattern}' matches no body; bodies: {list(body_names)}")
-        out += [h for h in hits if h not in out]
+        out += [body_names[i] for i in name_matches(pattern, body_names, key, "bodies") if body_names[i] not in out]
     return out
 
 
@@ -184,20 +181,19 @@ def match_joint_values(
 ) -> dict[str, object]:
     """Resolve a {pattern: value} YAML mapping to {joint: value}.
 
-    A pattern selects the joint of that exact name, or otherwise every joint in whose name it is found as a
-    regular expression ("HAA" -> all *_HAA joints, like legged_gym). An exact name wins over patterns; among
-    patterns the first in YAML order wins. A pattern that selects no joint is an error naming the key.
+    A pattern selects every joint whose whole name it matches (``name_matches``: ``".*_HAA"`` -> all *_HAA joints).
+    A key that is a joint's own name wins over the other patterns; among patterns the first in YAML order wins. A
+    pattern that selects no joint is an error naming the key.
     """
     patterns = dict(patterns or {})
+    selected = {pattern: set(name_matches(pattern, joint_names, key, "joints")) for pattern in patterns}
     resolved: dict[str, object] = {}
-    for pattern in patterns:
-        name_matches(pattern, joint_names, key, "joints")
-    for name in joint_names:
+    for i, name in enumerate(joint_names):
         if name in patterns:
             resolved[name] = patterns[name]
             continue
         for pattern, value in patterns.items():
-            if re.search(pattern, name):
+            if i in selected[pattern]:
                 resolved[name] = value
                 break
         else:
@@ -206,19 +202,32 @@ def match_joint_values(
     return resolved
 
 
-def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> list[int]:  # kind: "joints", ...
-    """Indices of the names ``pattern`` selects: the one of that exact name, or else every name in which it is
-    found as a regular expression (the rule of ``match_joint_values``). Selecting nothing is an error naming ``key``.
-    """
-    if pattern in names:
-        return [list(names).index(pattern)]
+def compile_pattern(pattern: object, key: str) -> re.Pattern:
+    """``pattern`` as a regular expression; an invalid one is an error naming ``key``."""
     try:
-        hits = [i for i, name in enumerate(names) if re.search(pattern, name)]
+        return re.compile(str(pattern))
     except re.error as err:
         raise ConfigError(f"{key}: '{pattern}' is not a valid regular expression ({err})") from None
+
+
+def no_match_error(key: str, pattern: object, kind: str, names: Sequence[str], how: str = "") -> ConfigError:
+    """The one error of a pattern that selects nothing: the key, the pattern and the names it could have selected."""
+    singular = {"bodies": "body"}.get(kind, kind[:-1])
+    return ConfigError(f"{key}: '{pattern}' matches no {singular}{how} (a pattern must match the whole name); "
+                       f"{kind}: {list(names)}")
+
+
+def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> list[int]:  # kind: "joints", ...
+    """Indices of the names that ``pattern``, a regular expression, matches as a whole (``re.fullmatch``).
+
+    The one rule of every YAML key that selects names (joints, bodies, geoms, actuators; docs/config.md, "Selecting
+    names"): ``"HAA"`` selects only a name ``HAA``, ``".*_HAA"`` every name ending in ``_HAA``. Selecting nothing is
+    an error naming ``key``, the pattern and the names.
+    """
+    regex = compile_pattern(pattern, key)
+    hits = [i for i, name in enumerate(names) if regex.fullmatch(name)]
     if not hits:
-        singular = {"bodies": "body"}.get(kind, kind[:-1])
-        raise ConfigError(f"{key}: '{pattern}' matches no {singular}. {kind.capitalize()} of this asset: {list(names)}")
+        raise no_match_error(key, pattern, kind, names)
     return hits
 
 
@@ -468,22 +477,17 @@ def _force_capped(joint: mujoco.MjsJoint) -> bool:
 
 
 def _override_actuators(spec: mujoco.MjSpec, patterns: Mapping[str, object], key: str, apply) -> None:
-    """Apply {actuator or joint name / regex: value} to the actuators selected (by own name or driven joint)."""
+    """Apply {pattern: value} to the actuators selected (``name_matches``' rule: a full match of the actuator's own
+    name or of the joint it drives)."""
     actuators = list(spec.actuators)
     for pattern, value in (patterns or {}).items():
-        hits = [a for a in actuators if _selects(pattern, a.name) or _selects(pattern, a.target)]
+        regex = compile_pattern(pattern, key)
+        hits = [a for a in actuators if any(n and regex.fullmatch(n) for n in (a.name, a.target))]
         if not hits:
-            listing = [f"{a.name} -> {a.target}" for a in actuators]
-            raise ConfigError(
-                f"{key}: '{pattern}' matches no actuator, by actuator name or by the joint it drives; "
-                f"actuators of this model (name -> joint): {listing}"
-            )
+            raise no_match_error(key, pattern, "actuators", [f"{a.name} -> {a.target}" for a in actuators],
+                                 " by actuator name or by the joint it drives")
         for act in hits:
             apply(act, value, f"{key}.{pattern}")
-
-
-def _selects(pattern: str, name: str | None) -> bool:
-    return bool(name) and (pattern == name or re.search(pattern, name) is not None)
 
 
 def _set_gear(act: mujoco.MjsActuator, value: object, key: str) -> None:

@@ -9,9 +9,9 @@ A scene is the main asset (``env.asset``, names unprefixed) plus the named asset
 fixtures, IsaacGymEnvs' actors), each attached to the main model under its own name prefix (``<name>/`` unless
 ``prefix`` says otherwise); see ``sim/scene.py`` for the views the built Simulator gives each of them.
 
-Names in YAML mappings (``driveMode``, ``stiffness``, ``contactBodies``, ...) are regular expressions; the rules
-are ``match_joint_values`` (joints: exact name, else found anywhere in the name) and ``match_body_names`` (bodies:
-full match) in ``sim/builder.py``, documented in docs/config.md below the ``env.asset`` table.
+Names in YAML mappings (``driveMode``, ``stiffness``, ``contactBodies``, ...) are regular expressions that must
+match the whole name: one rule, ``name_matches`` in ``sim/builder.py`` (used by ``match_joint_values`` and
+``match_body_names``), documented in docs/config.md below the ``env.asset`` table.
 """
 
 from __future__ import annotations
