@@ -8,6 +8,8 @@ helper computes it (a torque about the centre of mass, rotated by a kernel).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
@@ -16,23 +18,7 @@ import torch
 from isaacgymenvs_mw.sim import Simulator
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
-XML = """
-<mujoco>
-  <option timestep="0.01"/>
-  <worldbody>
-    <body name="box" pos="0 0 1">
-      <freejoint/>
-      <inertial pos="0.03 -0.02 0.01" mass="2" diaginertia="0.02 0.03 0.04"/>
-      <geom type="box" size="0.1 0.15 0.2" contype="0" conaffinity="0"/>
-    </body>
-    <body name="arm" pos="1 0 1">
-      <joint name="hinge" type="hinge" axis="0.3 0.2 1" damping="0.1"/>
-      <inertial pos="0.2 0.05 0" mass="0.5" diaginertia="0.01 0.01 0.01"/>
-      <geom type="capsule" fromto="0 0 0 0.4 0 0" size="0.02" contype="0" conaffinity="0"/>
-    </body>
-  </worldbody>
-</mujoco>
-"""
+XML = (Path(__file__).resolve().parent / "assets" / "free_box_and_hinge.xml").read_text()
 N, SUBSTEPS = 2, 3
 BOX, ARM = 1, 2
 QVEL0 = np.array([[0.1, -0.2, 0.3, 1.0, -2.0, 6.0, 3.0], [0.0, 0.4, 0.0, -3.0, 0.5, 2.0, -4.0]])

@@ -41,7 +41,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     if not cfg.test:
         check_logger(train_cfg)
-    checkpoint = _checkpoint_path(cfg)
+    checkpoint, saved = _read_checkpoint(cfg)
     if not cfg.test and rank == 0:
         check_runs_dir(cfg.runs_dir)
 
@@ -58,7 +58,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         if videos:
             _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval")
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
-        load_checkpoint(runner, checkpoint, task)
+        load_checkpoint(runner, checkpoint, task, saved)
         policy = runner.get_inference_policy(device=task.rl_device)
         onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported", task=task)
         print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
@@ -75,7 +75,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
 
     runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
     if checkpoint is not None:
-        load_checkpoint(runner, checkpoint, task)
+        load_checkpoint(runner, checkpoint, task, saved)
         print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
     if is_main:
         run_dir = _new_run_dir(run_dir)
@@ -245,28 +245,32 @@ def _new_run_dir(path: Path) -> Path:
             candidate = path.with_name(f"{path.name}_{n}")
 
 
-def _checkpoint_path(cfg: DictConfig) -> Path | None:
+def _read_checkpoint(cfg: DictConfig) -> tuple[Path | None, dict | None]:
+    """``checkpoint=`` as a path and its contents (on the CPU), read before the simulator is built."""
     if not cfg.checkpoint:
         if cfg.test:
             raise ConfigError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
-        return None
+        return None, None
     path = Path(str(cfg.checkpoint)).expanduser().resolve()
     if not path.is_file():
         raise MissingFileError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
     try:  # before the simulator is built, which can take minutes
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:
+        reason = one_line(str(err)).split(". ")[0]
         raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is not a readable checkpoint (truncated or not "
-                          f"written by torch.save: {one_line(str(err)).split('. ')[0]}); give a model_*.pt of a training run") from err
+                          f"written by torch.save: {reason}); give a model_*.pt of a training run") from err
     if not isinstance(state, dict) or "actor_state_dict" not in state:
         raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} holds no policy (no actor_state_dict); give a "
                           "model_*.pt of a training run")
-    return path
+    return path, state
 
 
-def load_checkpoint(runner: Runner, checkpoint: Path, task) -> None:
-    """Load a checkpoint after checking that its policy fits this task's observation and action sizes."""
-    state = torch.load(checkpoint, map_location=task.rl_device, weights_only=False)
+def load_checkpoint(runner: Runner, checkpoint: Path, task, state: dict | None = None) -> None:
+    """Load a checkpoint after checking that its policy fits this task's observation and action sizes; ``state``:
+    the file's contents when the caller has read them already (only their shapes are used here)."""
+    if state is None:
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     actor = state.get("actor_state_dict", {})
     weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
     if weights:
