@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import mujoco
+import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
@@ -123,17 +124,37 @@ def test_sim_dt_is_read_once_and_gives_the_timestep():
     assert build_model(request).opt.timestep == pytest.approx(0.004)
 
 
-def test_a_drive_on_a_joint_the_asset_actuates_is_refused_once_at_build():
-    """The one drive check (build_model): the request passes the YAML's entry on, the build refuses it."""
+def _walker_with(control: dict) -> mujoco.MjModel:
     cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
-                             "fixBaseLink": False},
-                   "control": {"driveMode": {"left_hip": "position"}}},
-           "sim": {}}
-    request, _ = new_request(cfg)
-    assert request.drives["left_hip"].mode == "position"
-    with pytest.raises(ConfigError, match=r"^env\.control\.driveMode: joints \['left_hip'\] are already driven by "
-                                          r"the asset's own actuators \(\{'left_hip': 'left_hip_motor'\}\)"):
-        build_model(request)
+                             "fixBaseLink": False}, "control": control}, "sim": {}}
+    return build_model(new_request(cfg)[0])
+
+
+def test_a_drive_on_a_joint_the_asset_actuates_rewrites_that_actuator_in_place():
+    """A YAML drive on an MJCF-actuated joint replaces the actuator's dynamics, not its name, column or range."""
+    written = _walker_with({})
+    position = _walker_with({"driveMode": {"left_hip": "position"}, "stiffness": {"left_hip": 55.0},
+                             "damping": {"left_hip": 3.0}})
+    effort = _walker_with({"driveMode": {"left_hip": "effort"}, "effortLimit": {"left_hip": 10.0}})
+    a = written.actuator("left_hip_motor").id
+    assert position.nu == effort.nu == written.nu
+    for m in (position, effort):
+        assert m.actuator("left_hip_motor").id == a and m.actuator_trnid[a, 0] == written.actuator_trnid[a, 0]
+        np.testing.assert_array_equal(m.actuator_forcerange[a], written.actuator_forcerange[a])
+    # MuJoCo's position servo: force = kp * ctrl - kp * q - kv * qdot
+    assert position.actuator_gainprm[a, 0] == 55.0
+    np.testing.assert_array_equal(position.actuator_biasprm[a, :3], [0.0, -55.0, -3.0])
+    # a motor: force = ctrl, no bias
+    assert effort.actuator_gainprm[a, 0] == 1.0 and not effort.actuator_biasprm[a].any()
+    # the unselected actuators are as written
+    other = written.actuator("right_hip_motor").id
+    np.testing.assert_array_equal(position.actuator_gainprm[other], written.actuator_gainprm[other])
+
+
+def test_a_drive_of_none_on_an_actuated_joint_is_refused():
+    with pytest.raises(ConfigError, match=r"^env\.control\.driveMode: joint 'left_hip' is driven by the asset's own "
+                                          r"actuator 'left_hip_motor', which a drive mode of 'none' cannot remove"):
+        _walker_with({"driveMode": {"left_hip": "none"}})
 
 
 def test_unknown_sim_key_is_refused_by_the_request():
@@ -194,3 +215,40 @@ def _record() -> None:
 if __name__ == "__main__" and "--record" in sys.argv:
     sys.path.insert(0, str(Path(__file__).parent))
     _record()
+
+
+# --------------------------------------------------------------------------------------------- env.contact
+def test_env_contact_sets_condim_and_friction_of_the_geoms_it_selects():
+    written = _walker_with({})
+    cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
+                             "fixBaseLink": False},
+                   "contact": {".*_foot_geom": {"condim": 4, "friction": [1.5, 0.01]}}}, "sim": {}}
+    m = build_model(new_request(cfg)[0])
+    feet = [g for g in range(m.ngeom) if (m.geom(g).name or "").endswith("_foot_geom")]
+    assert feet, "walker.xml has foot geoms"
+    for g in range(m.ngeom):
+        if g in feet:
+            assert m.geom_condim[g] == 4
+            np.testing.assert_allclose(m.geom_friction[g], [1.5, 0.01, 0.0001])
+        else:  # the others as the file writes them
+            assert m.geom_condim[g] == written.geom_condim[g]
+            np.testing.assert_array_equal(m.geom_friction[g], written.geom_friction[g])
+
+
+@pytest.mark.parametrize("entry, message", [
+    ({"condim": 2}, r"^env\.contact\.\.\*_foot\.condim=2 is invalid: give one of \[1, 3, 4, 6\]"),
+    ({"friction": [1.0, -0.1]}, r"^env\.contact\.\.\*_foot\.friction=\[1\.0, -0\.1\] is invalid: give 1 to 3 "),
+    ({"mu": 1.0}, r"^env\.contact\.\.\*_foot=\{'mu': 1\.0\} is invalid: give a mapping with keys condim"),
+])
+def test_env_contact_bad_values_are_refused_naming_the_key(entry, message):
+    cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
+                             "fixBaseLink": False}, "contact": {".*_foot": entry}}, "sim": {}}
+    with pytest.raises(ConfigError, match=message):
+        build_model(new_request(cfg)[0])
+
+
+def test_env_contact_pattern_that_selects_no_geom_is_refused():
+    cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
+                             "fixBaseLink": False}, "contact": {"gripper_pad": {"condim": 4}}}, "sim": {}}
+    with pytest.raises(ConfigError, match=r"^env\.contact\.gripper_pad"):
+        build_model(new_request(cfg)[0])

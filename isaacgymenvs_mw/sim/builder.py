@@ -5,8 +5,8 @@ is, or which solver to use. We load the file into an ``MjSpec`` and add those fr
 
 An MJCF may already say some of it. Its own actuators (gear, ctrlrange, forcerange), joint limits, armature and
 contact settings are kept as written: the model's actuators are the asset's, in file order, followed by one per
-joint that the YAML drives; a YAML drive on a joint the asset already actuates is an error, so that ``ctrl[:, i]``
-never silently reaches a second actuator on the same joint. An MJCF root body with a free joint is the floating
+joint that the YAML drives; a YAML drive on a joint the asset already actuates rewrites that actuator in place
+(``position`` with the YAML gains, or ``effort``), so that a joint never has two actuators. An MJCF root body with a free joint is the floating
 base; its ``pos``/``quat`` is the start pose unless the task gives one.
 """
 
@@ -96,6 +96,15 @@ class SceneAsset:
 
 
 @dataclass
+class GeomContact:
+    """How a geom touches others: MuJoCo's condim (1 frictionless, 3 sliding friction, 4 + torsional, 6 + rolling)
+    and friction (sliding, torsional, rolling); None keeps the file's."""
+
+    condim: int | None = None
+    friction: Sequence[float] | None = None
+
+
+@dataclass
 class ModelRequest:
     """Everything needed to build the task's model."""
 
@@ -126,6 +135,8 @@ class ModelRequest:
     spec: "mujoco.MjSpec | None" = None
     # Further assets of the scene (env.assets), attached in this order under their prefixes.
     assets: Sequence[SceneAsset] = ()
+    # {geom name regex: GeomContact}: contact properties of the selected geoms of the whole scene (env.contact).
+    geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
 
     def body_names(self) -> list[str]:
         """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""
@@ -274,16 +285,14 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     owned = actuated_joints(spec)
     for name in request.drives:
         _check_joint(spec, name, "env.control.driveMode")
-    # The one drive check: a YAML drive on a joint the asset's own actuator drives would put a second actuator on
-    # it, and ctrl[:, i] would silently reach only one of the two.
-    clash = {j: owned[j] for j in request.drives if j in owned}
-    if clash:
-        raise ConfigError(
-            f"env.control.driveMode: joints {sorted(clash)} are already driven by the asset's own actuators "
-            f"({clash}); the asset's actuators are used as written, so remove these driveMode entries"
-        )
+    # A YAML drive on a joint the asset's own actuator drives rewrites that actuator in place (its name, ctrl column
+    # and force range stay): one actuator per joint, so ctrl[:, i] never silently reaches only one of two.
+    for name, drive in request.drives.items():
+        if name in owned:
+            _rewrite_actuator(spec.actuator(owned[name]), spec.joint(name), drive)
     for name in joints:
-        _add_actuator(spec, name, request.drives.get(name, JointDrive()))
+        if name not in owned:
+            _add_actuator(spec, name, request.drives.get(name, JointDrive()))
     _override_actuators(spec, request.gear, "env.control.gear", _set_gear)
     _override_actuators(spec, request.ctrl_range, "env.control.ctrlRange", _set_ctrl_range)
 
@@ -295,6 +304,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         contype, conaffinity = _set_collision_filter(spec, False, True)  # now the objects' geoms count too
         for geom in ground:
             geom.contype, geom.conaffinity = contype, conaffinity
+    _set_geom_contacts(spec, request.geom_contacts)
 
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
@@ -471,6 +481,34 @@ def _add_actuator(spec: mujoco.MjSpec, joint_name: str, drive: JointDrive) -> No
         act.forcerange = [-float(drive.torque_limit), float(drive.torque_limit)]
 
 
+def _rewrite_actuator(act: mujoco.MjsActuator, joint: mujoco.MjsJoint, drive: JointDrive) -> None:
+    """Turn the asset's own actuator on ``joint_name`` into the YAML's drive, keeping its name, ctrl column and
+    force range: ``position`` -> a PD servo with the YAML gains, ``effort`` -> a motor (commands uncapped, the force
+    capped by the actuator's forcerange or the joint's actuatorfrcrange)."""
+    joint_name = joint.name
+    if drive.mode not in DRIVE_MODES:
+        raise ConfigError(f"drive mode '{drive.mode}' of joint '{joint_name}' is not one of {DRIVE_MODES}")
+    if drive.mode == "none":
+        raise ConfigError(
+            f"env.control.driveMode: joint '{joint_name}' is driven by the asset's own actuator '{act.name}', which "
+            "a drive mode of 'none' cannot remove: give 'position' or 'effort', or remove the entry"
+        )
+    if drive.mode == "effort":
+        capped = act.forcelimited != mujoco.mjtLimited.mjLIMITED_FALSE and act.forcerange[0] < act.forcerange[1]
+        if not (capped or _force_capped(joint)) and drive.torque_limit is None:
+            raise ConfigError(
+                f"env.control.driveMode: joint '{joint_name}' has an effort drive but its actuator '{act.name}' "
+                "and its joint have no force range: set env.control.effortLimit: {" + joint_name + ": <N m>}"
+            )
+        act.set_to_motor()
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE  # a range of joint targets must not clamp torques
+    else:
+        act.set_to_position(kp=float(drive.stiffness), kv=float(drive.damping))  # the ctrlrange of targets stays
+    if drive.torque_limit is not None:
+        act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.forcerange = [-float(drive.torque_limit), float(drive.torque_limit)]
+
+
 def _force_capped(joint: mujoco.MjsJoint) -> bool:
     lo, hi = (float(v) for v in joint.actfrcrange)
     return joint.actfrclimited != mujoco.mjtLimited.mjLIMITED_FALSE and lo < hi
@@ -488,6 +526,19 @@ def _override_actuators(spec: mujoco.MjSpec, patterns: Mapping[str, object], key
                                  " by actuator name or by the joint it drives")
         for act in hits:
             apply(act, value, f"{key}.{pattern}")
+
+
+def _set_geom_contacts(spec: mujoco.MjSpec, contacts: Mapping[str, GeomContact]) -> None:
+    """``env.contact``: each pattern's condim / friction on every geom of the scene whose whole name it matches
+    (scene assets' prefixed names included)."""
+    geoms = [g for g in spec.geoms if g.name]
+    names = [g.name for g in geoms]
+    for pattern, contact in contacts.items():
+        for i in name_matches(pattern, names, f"env.contact.{pattern}", "geoms"):
+            if contact.condim is not None:
+                geoms[i].condim = int(contact.condim)
+            if contact.friction is not None:
+                geoms[i].friction = list(contact.friction)
 
 
 def _set_gear(act: mujoco.MjsActuator, value: object, key: str) -> None:

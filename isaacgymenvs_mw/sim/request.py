@@ -20,8 +20,8 @@ import math
 from pathlib import Path
 from typing import Mapping
 
-from isaacgymenvs_mw.sim.builder import (GroundPlane, JointDrive, ModelRequest, SceneAsset, SolverOptions,
-                                          actuated_joints, is_mjcf, load_spec, match_body_names, match_joint_values,
+from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, ModelRequest, SceneAsset,
+                                          SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names, match_joint_values,
                                           movable_joint_names)
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 
@@ -87,8 +87,43 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
         keep_asset_contacts=keep_contacts,
         spec=spec,
         assets=scene_assets(env.get("assets"), yaml_dir, assets_dir, collapse),
+        geom_contacts=geom_contacts(env.get("contact")),
     )
     return request, torque_speed
+
+
+CONDIMS = (1, 3, 4, 6)
+
+
+def geom_contacts(cfg: Mapping | None) -> dict[str, GeomContact]:
+    """``env.contact``: {geom name regex: {condim, friction}} as ``GeomContact``s; a bad value is an error naming
+    ``env.contact.<pattern>.<key>``. Whether each pattern selects a geom is checked when the scene is composed."""
+    if not cfg:
+        return {}
+    if not hasattr(cfg, "items"):
+        raise ConfigError(f"env.contact={cfg!r} is invalid: give a mapping {{geom name regex: {{condim: 4, "
+                          "friction: [1.0, 0.005, 0.0001]}}}}")
+    out = {}
+    for pattern, entry in cfg.items():
+        key = f"env.contact.{pattern}"
+        if not hasattr(entry, "items") or sorted(str(k) for k in entry if k not in ("condim", "friction")):
+            raise ConfigError(f"{key}={entry!r} is invalid: give a mapping with keys condim and/or friction")
+        condim = entry.get("condim")
+        if condim is not None and (isinstance(condim, bool) or condim not in CONDIMS):
+            raise ConfigError(f"{key}.condim={condim!r} is invalid: give one of {list(CONDIMS)} (1 frictionless, "
+                              "3 sliding friction, 4 + torsional, 6 + rolling)")
+        friction = entry.get("friction")
+        if friction is not None:
+            try:
+                friction = [float(v) for v in ([friction] if isinstance(friction, (int, float)) else friction)]
+            except (TypeError, ValueError):
+                friction = None
+            if friction is None or not 1 <= len(friction) <= 3 or min(friction) < 0:
+                raise ConfigError(f"{key}.friction={entry.get('friction')!r} is invalid: give 1 to 3 numbers >= 0 "
+                                  "(sliding, torsional, rolling)")
+            friction = friction + [0.005, 0.0001][len(friction) - 1:]  # MuJoCo's defaults for the ones not given
+        out[str(pattern)] = GeomContact(None if condim is None else int(condim), friction)
+    return out
 
 
 def scene_assets(cfg: Mapping | None, yaml_dir: str | None, assets_dir: Path,

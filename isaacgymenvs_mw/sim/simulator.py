@@ -140,6 +140,9 @@ class Simulator:
         self.xpos = wp.to_torch(d.xpos)
         self.xquat = wp.to_torch(d.xquat)
         self.xipos = wp.to_torch(d.xipos)  # centres of mass, world frame
+        self.xmat = wp.to_torch(d.xmat)  # (N, nbody, 3, 3) body orientations: columns are the body axes in world
+        self.site_xpos = wp.to_torch(d.site_xpos)  # (N, nsite, 3) site positions, world frame
+        self.site_xmat = wp.to_torch(d.site_xmat)  # (N, nsite, 3, 3) site orientations
         # Body velocities as MuJoCo keeps them: (angular, linear) in world axes, about the subtree centre of mass of
         # the body's root (see body_lin_vel).
         self.cvel = wp.to_torch(d.cvel)
@@ -531,6 +534,14 @@ class Simulator:
         if self.body_forces is not None:
             self.body_forces.clear()
             self.body_forces.active = self.body_forces.needs_kinematics = False
+
+    def site_id(self, name: str) -> int:
+        """The model index of the site ``name`` (a column of ``site_xpos`` / ``site_xmat``)."""
+        sid = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, name)
+        if sid < 0:
+            names = [mujoco.mj_id2name(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, i) for i in range(self.mj_model.nsite)]
+            raise KeyError(f"no site named '{name}'; the model's sites: {names}")
+        return sid
 
     def body_id(self, name: str) -> int:
         if name not in self.body_names:
