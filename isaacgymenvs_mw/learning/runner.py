@@ -281,6 +281,7 @@ def evaluate(task, policy, device: str) -> dict:
     result_len = torch.zeros(n, device=env.device)
     result_timeout = torch.zeros(n, dtype=torch.bool, device=env.device)
     metric_sums: dict[str, torch.Tensor] = {}
+    outcomes: dict[str, torch.Tensor] = {}  # per env, how its first episode ended (e.g. success 1 / 0)
     # Results per group the task declares (the terrain tasks: each env's level during its first episode; levels
     # change only at resets), as the task defines them at the start.
     groups = {name: value.clone() for name, value in task.evaluation_groups().items()}
@@ -300,6 +301,9 @@ def evaluate(task, policy, device: str) -> dict:
             result_ret = torch.where(just_done, ret, result_ret)
             result_len = torch.where(just_done, length, result_len)
             result_timeout |= just_done & (extras["time_outs"] != 0)
+            for key, value in extras.get("episode_outcomes", {}).items():
+                # per-env values of the episodes that ended in this step (a task's success flag)
+                outcomes[key] = torch.where(just_done, value, outcomes.get(key, torch.zeros(n, device=env.device)))
             finished |= just_done
             if step % 50 == 0 and bool(finished.all()):
                 break
@@ -315,6 +319,8 @@ def evaluate(task, policy, device: str) -> dict:
     }
     for key, value in metric_sums.items():
         out[key] = float((value / length.clamp(min=1)).mean())
+    for key, value in outcomes.items():  # an episode still running at the cap counts 0
+        out[key] = float(value.mean())
     for name, labels in groups.items():
         out[f"per_{name}"] = {}
         for label in sorted(set(labels.tolist())):

@@ -1,0 +1,225 @@
+"""FrankaCabinet: a Franka Panda opens the top drawer of a cabinet by its handle (IsaacGymEnvs' task).
+
+The scene: the Panda (``env.asset``, at the world origin) faces the cabinet (``env.assets.cabinet``), whose top
+drawer slides out toward the robot. Actions move the 7 joint targets and the gripper target by
+``actionScale x control dt x a`` per step (the gripper 10 times slower), as IsaacGymEnvs; the episode ends when the
+drawer is open past ``openDistance`` (a success) or at the time limit.
+
+Differences from IsaacGymEnvs, on purpose: the fingers are coupled (8 actions, not 9; the observation keeps both
+finger positions, 23 values as IGE); the grasp point is the ``grasp`` site between the fingertip pads (IGE adds
+4 cm along a link7 axis to the finger bodies' midpoint); the drawer's grasp point is the handle bar's centre (IGE:
+1 cm beside it); the cabinet is the robot's IGE pose expressed the other way round (the robot at the origin, the
+cabinet turned to face it), so "a finger past the handle" is measured along the drawer's opening axis, not world x;
+no loose boxes in the drawer (as Isaac Lab's port).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from isaacgymenvs_mw.tasks.base.franka import FrankaArm
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+# env keys of the task YAML (IsaacGymEnvs' names) that are plain numbers.
+_NUMBER_KEYS = ("actionScale", "fingerSpeedScale", "dofVelocityScale", "startDofNoise", "openDistance",
+                "pastHandleReward", "rewardScale")
+# reward term -> the env key of its scale (IsaacGymEnvs' names)
+REWARD_SCALE_KEYS = {"handle_distance": "distRewardScale", "alignment": "rotRewardScale",
+                     "around_handle": "aroundHandleRewardScale", "open": "openRewardScale",
+                     "finger_distance": "fingerDistRewardScale", "open_bonus": "openBonusScale",
+                     "action": "actionPenaltyScale"}
+
+
+class FrankaCabinet(VecTask):
+    """Observation (23): scaled joint positions, joint velocities, grasp-to-handle vector, drawer position and
+    velocity. Actions (8): changes of the 7 joint targets and the gripper target."""
+
+    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
+                 virtual_screen_capture=False, force_render=False):
+        self.cfg = cfg
+        env = cfg["env"]
+        missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) + ("startDofPos", "drawer")
+                   if k not in env]
+        if missing:
+            raise ConfigError(f"FrankaCabinet: the task YAML's env section lacks {missing}")
+        self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
+        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
+                         virtual_screen_capture, force_render)
+        self.arm = FrankaArm(self.sim, "FrankaCabinet")
+        self._init_drawer(env["drawer"])
+        start = torch.tensor(list(env["startDofPos"]), dtype=torch.float32, device=self.device)
+        if start.shape != (9,):
+            raise ConfigError(f"env.startDofPos={list(env['startDofPos'])} is invalid: give 9 joint positions "
+                              "(7 arm joints, 2 fingers)")
+        outside = ((start < self.arm.dof_lower) | (start > self.arm.dof_upper)).nonzero().flatten().tolist()
+        if outside:
+            i = outside[0]
+            raise ConfigError(f"env.startDofPos[{i}]={float(start[i]):.6g} is outside the range of joint "
+                              f"{self.sim.dof_names[i]} [{float(self.arm.dof_lower[i]):.6g}, "
+                              f"{float(self.arm.dof_upper[i]):.6g}] (a finger's opening is 0 ... 0.04 m)")
+        self.start_dof_pos = start
+        # Per step, a target moves by at most actionScale x control dt (rad for the arm, m for the gripper).
+        speed = torch.ones(self.arm.num_targets, device=self.device)
+        speed[-1] = self.k["fingerSpeedScale"]
+        self.target_step = speed * self.k["actionScale"] * self.control_dt
+        self.actions = torch.zeros((self.num_envs, self.num_actions), device=self.device)
+        self.success_buf = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
+                                   self.device, key="env")
+        self.build_observation_layouts()
+
+    def _init_drawer(self, drawer: dict) -> None:
+        """The drawer's joint and handle site, by the names ``env.drawer`` gives (prefixed by the cabinet asset)."""
+        try:
+            self.cabinet = self.sim.asset(str(drawer["asset"]))
+        except KeyError:
+            raise ConfigError(f"env.drawer.asset={drawer.get('asset')!r} is not an asset of the scene: give one "
+                              f"of {list(self.sim.assets)} (env.assets)") from None
+        joint = self.cabinet.prefix + str(drawer["joint"])
+        if joint not in self.cabinet.dof_names:
+            raise ConfigError(f"env.drawer.joint={drawer['joint']!r}: the asset "
+                              f"'{self.cabinet.name}' has no such joint; its joints: "
+                              f"{[n[len(self.cabinet.prefix):] for n in self.cabinet.dof_names]}")
+        self.drawer_dof = self.cabinet.dof_names.index(joint)
+        try:
+            self.handle_site = self.sim.site_id(self.cabinet.prefix + str(drawer["handleSite"]))
+        except KeyError as err:
+            raise ConfigError(f"env.drawer.handleSite={drawer['handleSite']!r}: {err.args[0]}") from None
+        m = self.sim.mj_model
+        self.drawer_body = int(m.site_bodyid[self.handle_site])
+        # The drawer's opening direction in the world: its joint axis (the cabinet is fixed, so it never changes).
+        axis = torch.tensor(m.jnt_axis[m.joint(joint).id], dtype=torch.float32, device=self.device)
+        self.sim.refresh_kinematics()
+        self.opening_axis = self.sim.xmat[0, self.drawer_body] @ axis
+
+    # ------------------------------------------------------------------ pre-physics
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        self.actions.copy_(actions)
+        self.arm.move_targets(actions * self.target_step)
+
+    # ------------------------------------------------------------------ post-physics
+    def drawer_pos(self) -> torch.Tensor:
+        return self.cabinet.dof_pos[:, self.drawer_dof]
+
+    def check_termination(self) -> torch.Tensor:
+        self.success_buf.copy_(self.drawer_pos() > self.k["openDistance"])
+        return self.success_buf
+
+    def compute_reward(self) -> None:
+        reward = self.rewards.compute(self.nonfinite_buf)
+        left, right = self.arm.finger_pos()
+        handle = self.sim.site_xpos[:, self.handle_site]
+        past = fingers_past_handle(left, right, handle, self.opening_axis)
+        self.rew_buf[:] = torch.where(past, self.k["pastHandleReward"], reward) * self.k["rewardScale"]
+
+    # Reward terms: each returns its per-step value; its YAML scale multiplies it (REWARD_SCALE_KEYS).
+    def _reward_handle_distance(self) -> torch.Tensor:
+        # closeness of the grasp point to the handle, doubled within 2 cm
+        return handle_distance_reward(torch.norm(self.arm.grasp_pos() - self.sim.site_xpos[:, self.handle_site],
+                                                 dim=-1))
+
+    def _reward_alignment(self) -> torch.Tensor:
+        # the gripper approaches along the drawer's inward axis with its fingers one above the other
+        grip, drawer = self.arm.grasp_axes(), self.sim.xmat[:, self.drawer_body]  # axes as columns
+        return alignment_reward(grip[..., 2], grip[..., 1], -drawer[..., 0], drawer[..., 2])
+
+    def _reward_around_handle(self) -> torch.Tensor:
+        # the left finger above the handle and the right one below it
+        return self._around()
+
+    def _reward_finger_distance(self) -> torch.Tensor:
+        # with the fingers around the handle: how close each is to the handle's height
+        left, right = self.arm.finger_pos()
+        return finger_distance_reward(left[:, 2], right[:, 2], self.sim.site_xpos[:, self.handle_site, 2])
+
+    def _reward_open(self) -> torch.Tensor:
+        # how far the drawer is open, counted twice while the fingers are around the handle
+        return open_reward(self.drawer_pos(), self._around())
+
+    def _reward_open_bonus(self) -> torch.Tensor:
+        # IsaacGymEnvs' bonuses for passing 0.01 m, 0.2 m and 0.39 m of opening
+        return open_bonus(self.drawer_pos(), self._around())
+
+    def _reward_action(self) -> torch.Tensor:
+        # squared size of the action (a penalty: its scale is subtracted)
+        return -torch.sum(self.actions ** 2, dim=-1)
+
+    def _around(self) -> torch.Tensor:
+        left, right = self.arm.finger_pos()
+        return around_handle(left[:, 2], right[:, 2], self.sim.site_xpos[:, self.handle_site, 2])
+
+    def observation_terms(self) -> list[ObsTerm]:
+        def to_handle() -> torch.Tensor:
+            return self.sim.site_xpos[:, self.handle_site] - self.arm.grasp_pos()
+
+        d = self.drawer_dof
+        return [ObsTerm("dof_pos", 9, compute=self.arm.scaled_dof_pos),                # 7 arm + 2 fingers, [-1, 1]
+                ObsTerm("dof_vel", 9, scale=self.k["dofVelocityScale"],
+                        compute=lambda: self.sim.dof_vel),                              # rad/s, m/s
+                ObsTerm("to_handle", 3, compute=to_handle),                             # m, world frame
+                ObsTerm("drawer_pos", 1, compute=lambda: self.cabinet.dof_pos[:, d:d + 1]),  # m, 0 closed
+                ObsTerm("drawer_vel", 1, compute=lambda: self.cabinet.dof_vel[:, d:d + 1])]  # m/s
+
+    # ------------------------------------------------------------------ reset
+    def reset_idx(self, env_ids: torch.Tensor) -> None:
+        mask = self.env_mask(env_ids)
+        noise = self.k["startDofNoise"] * (torch.rand((self.num_envs, 9), device=self.device) - 0.5)
+        dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
+        self.arm.reset(mask, dof_pos)
+        closed = torch.zeros_like(self.cabinet.dof_pos)
+        self.sim.write_state(mask, dof_pos=closed, dof_vel=closed, asset=self.cabinet.name, refresh=True)
+        self.actions.masked_fill_(mask.unsqueeze(1), 0.0)
+        # Success: the episode ended with the drawer open (a time-out is not one). Training logs the rate over the
+        # episodes that end (Episode/success); test mode reports each env's first episode (eval.json "success").
+        success = (self.success_buf & mask).float()
+        self.extras["episode_metrics"] = {"success": success.sum()}
+        self.extras["episode_outcomes"] = {"success": success}
+        self.progress_buf.masked_fill_(mask, 0)
+
+
+# --------------------------------------------------------------------------- reward functions (IsaacGymEnvs')
+def handle_distance_reward(distance: torch.Tensor) -> torch.Tensor:
+    """(1 / (1 + d²))², doubled when d <= 0.02 m."""
+    r = 1.0 / (1.0 + distance ** 2)
+    r = r * r
+    return torch.where(distance <= 0.02, 2.0 * r, r)
+
+
+def alignment_reward(grip_forward: torch.Tensor, grip_up: torch.Tensor, drawer_inward: torch.Tensor,
+                     drawer_up: torch.Tensor) -> torch.Tensor:
+    """½ (sign(c1) c1² + sign(c2) c2²) with c1 = forward·inward and c2 = up·up: 1 when aligned, -1 when opposed."""
+    c1 = torch.sum(grip_forward * drawer_inward, dim=-1)
+    c2 = torch.sum(grip_up * drawer_up, dim=-1)
+    return 0.5 * (torch.sign(c1) * c1 ** 2 + torch.sign(c2) * c2 ** 2)
+
+
+def around_handle(z_left: torch.Tensor, z_right: torch.Tensor, z_handle: torch.Tensor) -> torch.Tensor:
+    """0.5 when the left finger is above the handle and the right one below it, else 0."""
+    return torch.where((z_left > z_handle) & (z_right < z_handle), 0.5, 0.0)
+
+
+def finger_distance_reward(z_left: torch.Tensor, z_right: torch.Tensor, z_handle: torch.Tensor) -> torch.Tensor:
+    """(0.04 - |z_l - z_h|) + (0.04 - |z_r - z_h|) while the fingers are around the handle, else 0."""
+    closeness = (0.04 - torch.abs(z_left - z_handle)) + (0.04 - torch.abs(z_right - z_handle))
+    return torch.where(around_handle(z_left, z_right, z_handle) > 0.0, closeness, 0.0)
+
+
+def open_reward(drawer_pos: torch.Tensor, around: torch.Tensor) -> torch.Tensor:
+    """q_d (1 + around): the opening, worth 1.5 times as much with the fingers around the handle."""
+    return drawer_pos * around + drawer_pos
+
+
+def open_bonus(drawer_pos: torch.Tensor, around: torch.Tensor) -> torch.Tensor:
+    """+0.5 past 0.01 m, + around past 0.2 m, + 2 around past 0.39 m."""
+    return (0.5 * (drawer_pos > 0.01) + around * (drawer_pos > 0.2) + 2.0 * around * (drawer_pos > 0.39)).float()
+
+
+def fingers_past_handle(left: torch.Tensor, right: torch.Tensor, handle: torch.Tensor,
+                        opening_axis: torch.Tensor) -> torch.Tensor:
+    """A finger more than 4 cm behind the handle, toward the cabinet along the drawer's opening axis (IsaacGymEnvs
+    then overwrites the reward with -1)."""
+    behind = lambda p: torch.sum((p - handle) * opening_axis, dim=-1) < -0.04  # noqa: E731
+    return behind(left) | behind(right)
