@@ -300,7 +300,10 @@ def evaluate(task, policy, device: str) -> dict:
             just_done = active & (dones != 0)
             result_ret = torch.where(just_done, ret, result_ret)
             result_len = torch.where(just_done, length, result_len)
-            result_timeout |= just_done & (extras["time_outs"] != 0)
+            timed_out = extras["time_outs"] != 0
+            if "successes" in extras:  # bootstrapped like time-outs for learning, but not time-outs
+                timed_out &= ~extras["successes"]
+            result_timeout |= just_done & timed_out
             for key, value in extras.get("episode_outcomes", {}).items():
                 # per-env values of the episodes that ended in this step (a task's success flag)
                 outcomes[key] = torch.where(just_done, value, outcomes.get(key, torch.zeros(n, device=env.device)))

@@ -96,7 +96,9 @@ class RslRlVecEnv(VecEnv):
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         obs_dict, rew, reset, extras = self.task.step(actions)
         self._obs = self._to_tensordict(obs_dict)
-        self.stats.record(rew, reset, extras["time_outs"], extras["nonfinite_resets"])
+        # "time_outs" also holds the successes, which the learner bootstraps alike; the statistics count time-outs.
+        time_outs = extras["time_outs"] & ~extras["successes"] if "successes" in extras else extras["time_outs"]
+        self.stats.record(rew, reset, time_outs, extras["nonfinite_resets"])
         if "episode_terms" in extras:  # tasks that report them set them every step
             self.stats.add_terms(extras["episode_terms"])
         if "episode_metrics" in extras:  # the metrics the task declares, e.g. the terrain curriculum's level

@@ -66,7 +66,6 @@ class FrankaCabinet(VecTask):
         speed[-1] = self.k["fingerSpeedScale"]
         self.target_step = speed * self.k["actionScale"] * self.control_dt
         self.actions = torch.zeros((self.num_envs, self.num_actions), device=self.device)
-        self.success_buf = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
                                    self.device, key="env")
         self.build_observation_layouts()
@@ -104,9 +103,9 @@ class FrankaCabinet(VecTask):
     def drawer_pos(self) -> torch.Tensor:
         return self.cabinet.dof_pos[:, self.drawer_dof]
 
-    def check_termination(self) -> torch.Tensor:
-        self.success_buf.copy_(self.drawer_pos() > self.k["openDistance"])
-        return self.success_buf
+    def check_success(self) -> torch.Tensor:
+        # open past openDistance (IGE's end condition): the episode ends, bootstrapped (see VecTask.check_success)
+        return self.drawer_pos() > self.k["openDistance"]
 
     def compute_reward(self) -> None:
         reward = self.rewards.compute(self.nonfinite_buf)

@@ -3,13 +3,17 @@
 The episode belongs to VecTask: ``env.episodeLength_s`` (seconds) becomes ``max_episode_length`` (policy steps), and
 one after-physics sequence (``post_physics_step``) runs every task:
 
-    progress_buf += 1 -> refresh_state() -> terminations: check_termination() | blown-up worlds, and time-outs
-    -> compute_reward() -> resets: the randomisation layer's on_reset, then reset_idx() -> after_reset()
+    progress_buf += 1 -> refresh_state() -> terminations: check_termination() | blown-up worlds; successes:
+    check_success(); and time-outs -> compute_reward() -> resets: the randomisation layer's on_reset, then reset_idx() -> after_reset()
     -> compute_observations()
 
 A task writes, in torch on ``self.device``, the terms of that sequence, not the sequence:
   * ``pre_physics_step(a)``    -- turn clipped actions into actuator commands (``self.sim.ctrl``)
   * ``check_termination()``    -- the envs that failed this step (bool mask); default: none (time-outs only)
+  * ``check_success()``        -- the envs that reached the goal this step (bool mask; default: none). Their
+    episodes end, and the learner bootstraps them like time-outs: a reached goal is not a dead end, so ending
+    there never costs the policy the reward it would have kept earning (without it, FrankaCabinet's policy learned
+    to hold the drawer just short of open)
   * ``compute_reward()``       -- fill ``rew_buf`` (``tasks/base/rewards.py`` sums named terms)
   * ``reset_idx(env_mask)``    -- re-initialise the envs selected by a boolean mask of shape (num_envs,)
   * ``compute_observations()`` -- fill ``obs_buf`` (and ``states_buf`` when numStates > 0)
@@ -184,6 +188,7 @@ class VecTask(ObservationGroups):
         self._states_out = torch.zeros_like(self.states_buf)
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
+        self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         self.execution = StepExecution(
             type(self).__name__, self._before_physics, self.sim.simulate, self._after_physics, self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
@@ -235,9 +240,10 @@ class VecTask(ObservationGroups):
         self.refresh_state()
         # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
         self.terminate_buf.copy_(self.check_termination() | self.nonfinite_buf)
+        self.success_buf.copy_(self.check_success() & ~self.terminate_buf)
         timeout = self.progress_buf >= self.max_episode_length - 1
         self.timeout_buf.copy_(timeout & ~self.nonfinite_buf)
-        self.reset_buf.copy_(self.terminate_buf | timeout)
+        self.reset_buf.copy_(self.terminate_buf | self.success_buf | timeout)
         self.compute_reward()
         new_episode = self.reset_buf != 0
         self.reset_envs(new_episode)
@@ -249,6 +255,11 @@ class VecTask(ObservationGroups):
 
     def check_termination(self) -> torch.Tensor:
         """(num_envs,) bool: the envs that failed this step; time-outs and blown-up worlds are VecTask's."""
+        return torch.zeros_like(self.nonfinite_buf)
+
+    def check_success(self) -> torch.Tensor:
+        """(num_envs,) bool: the envs that reached the task's goal this step (their episodes end, bootstrapped as
+        at a time-out); default: none."""
         return torch.zeros_like(self.nonfinite_buf)
 
     def compute_reward(self) -> None:
@@ -318,7 +329,9 @@ class VecTask(ObservationGroups):
         self.execution.run(actions)  # pre-physics, physics, post-physics: eager, compiled or captured
         self.control_steps += 1
 
-        self.extras["time_outs"] = self.timeout_buf.to(self.rl_device)
+        # The learner bootstraps the value of the episodes in "time_outs": time-outs and successes.
+        self.extras["time_outs"] = (self.timeout_buf | self.success_buf).to(self.rl_device)
+        self.extras["successes"] = self.success_buf.to(self.rl_device)
         self.extras["nonfinite_resets"] = self.nonfinite_buf
         # The next step rewrites the output buffers in place while the learner still holds this observation.
         obs = self._obs_out if self.obs_history is None else self.obs_history.out
