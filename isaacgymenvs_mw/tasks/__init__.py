@@ -16,6 +16,7 @@ from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
 from isaacgymenvs_mw.tasks.franka_cabinet import FrankaCabinet
+from isaacgymenvs_mw.tasks.franka_cube_stack import FrankaCubeStack
 from isaacgymenvs_mw.tasks.g1 import G1
 from isaacgymenvs_mw.tasks.go1 import Go1
 from isaacgymenvs_mw.tasks.humanoid import Humanoid
@@ -27,6 +28,7 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain
     "Cartpole": Cartpole,
     "FrankaCabinet": FrankaCabinet,
+    "FrankaCubeStack": FrankaCubeStack,
     "G1": G1,
     "G1Terrain": G1,  # same class; cfg/task/G1Terrain.yaml adds env.terrain
     "Go1": Go1,

@@ -1,0 +1,250 @@
+"""FrankaCubeStack: a Franka Panda picks up cube A (5 cm) and puts it on cube B (7 cm) (IsaacGymEnvs' task).
+
+The scene (``cfg/task/FrankaCubeStack.yaml``): the Panda (``env.asset``) at the world origin, which is its base
+frame; a table (``env.assets.table``) whose top is 0.1 m below the base with its centre 0.45 m in front (+x); the
+two cubes (``env.assets.cubeA`` / ``cubeB``), free bodies placed at every reset. The episode ends when A sits on B
+with the gripper away from it (a success, reported as ``success``; the learner bootstraps it like a time-out,
+VecTask.check_success) or at the time limit.
+
+Control (``env.controlType``):
+  * ``joint_pos`` (default): the 7 arm servo targets move by ``actionScale x control dt x a`` per step, clamped to
+    the joint ranges (as FrankaCabinet);
+  * ``joint_tor``: the arm joints' torques are ``a x`` their limits (87 / 12 N m), IsaacGymEnvs' joint_tor, by
+    rewriting the MJCF's arm servos as motors (``env.control.driveMode: {'joint[1-7]': effort}``);
+  * ``osc`` (IsaacGymEnvs' default) is refused: it needs the mass matrix and the hand Jacobian per world, which the
+    Simulator does not expose (docs/config.md, "FrankaCubeStack").
+  The last action is the gripper in every mode: >= 0 opens the fingers (0.04 m each), < 0 closes them.
+
+Differences from IsaacGymEnvs, on purpose: cube B rests on the table (IGE spawns it with cube A's half-size, 1 cm
+into the table); quaternions are MuJoCo's (w, x, y, z), IGE's (x, y, z, w); positions are in the robot's base
+frame (IGE: the env frame with the table top at 1.025 m); the fingers are coupled (8 actions, not 9 in joint_tor);
+joint_pos observes all 9 joint positions, as IGE's joint_tor does (the joint-space policy needs to know the joint
+configuration to turn a wanted hand motion into joint motions).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from isaacgymenvs_mw.tasks.base.franka import FrankaArm
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+CONTROL_TYPES = ("joint_pos", "joint_tor")
+OSC_REFUSED = ("osc (IsaacGymEnvs' operational-space control) is not available: it needs each world's mass matrix "
+               "and hand Jacobian, which the simulator does not expose yet")
+# env keys of the task YAML that are plain numbers
+_NUMBER_KEYS = ("actionScale", "frankaDofNoise", "startPositionNoise", "startRotationNoise")
+# reward term -> the env key of its scale (IsaacGymEnvs' names)
+REWARD_SCALE_KEYS = {"dist": "distRewardScale", "lift": "liftRewardScale", "align": "alignRewardScale",
+                     "stack": "stackRewardScale"}
+
+CUBE_A_SIZE, CUBE_B_SIZE = 0.05, 0.07  # edge lengths (m), assets/mjcf/cube_5cm.xml and cube_7cm.xml
+TABLE_TOP = -0.1  # table surface height in the robot's base frame (m), assets/mjcf/table.xml
+TABLE_CENTRE_XY = (0.45, 0.0)
+FINGERTIP = 0.0441  # fingertip point: this far along the grasp frame's approach axis from a finger's origin (m), IGE
+OPEN, CLOSED = 0.04, 0.0  # gripper commands: each finger's opening (m)
+# IGE: A is re-drawn until its xy distance from B is at least 2 (a + b) sqrt(2) / 2 = 0.170 m (twice the sum of the
+# cubes' half-diagonals), so that the cubes never overlap, whatever their yaws.
+MIN_CUBE_DISTANCE = 2.0 * (CUBE_A_SIZE + CUBE_B_SIZE) * math.sqrt(2.0) / 2.0
+CANDIDATES = 32  # draws for A per reset; the first far enough from B is taken (all 32 too close: p < 1e-13)
+
+
+class FrankaCubeStack(VecTask):
+    """Observation: cube A's orientation and position, B - A, the grasp frame's position and orientation, and the
+    joint positions (all 9 in the joint modes). Actions (8): 7 arm commands and the gripper."""
+
+    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
+                 virtual_screen_capture=False, force_render=False):
+        self.cfg = cfg
+        env = cfg["env"]
+        missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) + ("startDofPos",) if k not in env]
+        if missing:
+            raise ConfigError(f"FrankaCubeStack: the task YAML's env section lacks {missing}")
+        self.control_type = control_type(env.get("controlType", "joint_pos"))
+        if self.control_type == "joint_tor":
+            # The MJCF's arm servos become torque motors (same names and ctrl columns, force capped at 87 / 12 N m).
+            control = env.setdefault("control", {})
+            control["driveMode"] = {**dict(control.get("driveMode") or {}), "joint[1-7]": "effort"}
+        self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
+        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
+                         virtual_screen_capture, force_render)
+        self.arm = FrankaArm(self.sim, "FrankaCubeStack")
+        start = torch.tensor(list(env["startDofPos"]), dtype=torch.float32, device=self.device)
+        if start.shape != (9,):
+            raise ConfigError(f"env.startDofPos={list(env['startDofPos'])} is invalid: give 9 joint positions "
+                              "(7 arm joints, 2 fingers)")
+        self.start_dof_pos = start
+        self.cube_a, self.cube_b = self.sim.asset("cubeA"), self.sim.asset("cubeB")
+        m = self.sim.mj_model
+        self.torque_limit = torch.tensor(m.actuator_forcerange[:7, 1], dtype=torch.float32, device=self.device)
+        self.arm_step = self.k["actionScale"] * self.control_dt  # rad per step at action 1 (joint_pos)
+        self.table_centre = torch.tensor([*TABLE_CENTRE_XY], device=self.device)
+        self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
+                                   self.device, key="env")
+        self.terms: dict[str, torch.Tensor] = {}
+        self.build_observation_layouts()
+
+    # ------------------------------------------------------------------ pre-physics
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        grip = torch.where(actions[:, 7] >= 0.0, OPEN, CLOSED)
+        if self.control_type == "joint_pos":
+            delta = torch.cat((actions[:, :7] * self.arm_step, (grip - self.arm.targets[:, 7]).unsqueeze(1)), dim=1)
+            self.arm.move_targets(delta)
+        else:  # joint_tor
+            self.sim.ctrl[:, :7] = actions[:, :7] * self.torque_limit
+            self.sim.ctrl[:, 7] = grip
+
+    # ------------------------------------------------------------------ post-physics
+    def refresh_state(self) -> None:
+        """The quantities the reward terms and the success test share, once per step."""
+        grasp = self.arm.grasp_pos()
+        approach = self.arm.grasp_axes()[:, :, 2]
+        left, right = self.arm.finger_pos()
+        self.terms = cube_stack_terms(self.cube_a.root_pos, self.cube_b.root_pos, grasp,
+                                      left + FINGERTIP * approach, right + FINGERTIP * approach)
+
+    def check_success(self) -> torch.Tensor:
+        # A on B, released (IGE's end condition): the episode ends, bootstrapped (see VecTask.check_success)
+        return self.terms["stacked"]
+
+    def compute_reward(self) -> None:
+        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf)
+
+    # Reward terms (IsaacGymEnvs' formula): stack replaces the other three on the step it succeeds.
+    def _reward_dist(self) -> torch.Tensor:
+        # approach: 1 - tanh(10 x mean distance of A to grasp point and fingertips), at least the align term
+        return self.terms["dist"] * ~self.terms["stacked"]
+
+    def _reward_lift(self) -> torch.Tensor:
+        # A's centre more than 9 cm above the table
+        return self.terms["lifted"] * ~self.terms["stacked"]
+
+    def _reward_align(self) -> torch.Tensor:
+        # while lifted: 1 - tanh(10 x distance of A from its place on top of B)
+        return self.terms["align"] * ~self.terms["stacked"]
+
+    def _reward_stack(self) -> torch.Tensor:
+        # A on B, the gripper released
+        return self.terms["stacked"].float()
+
+    def observation_terms(self) -> list[ObsTerm]:
+        def grasp_quat() -> torch.Tensor:
+            return quat_from_matrix(self.arm.grasp_axes())
+
+        terms = [ObsTerm("cube_a_quat", 4, compute=lambda: self.cube_a.root_quat),    # (w, x, y, z) MuJoCo order
+                 ObsTerm("cube_a_pos", 3, compute=lambda: self.cube_a.root_pos),      # m, robot base frame
+                 ObsTerm("cube_a_to_b", 3,
+                         compute=lambda: self.cube_b.root_pos - self.cube_a.root_pos),  # m, B - A
+                 ObsTerm("grasp_pos", 3, compute=self.arm.grasp_pos),                 # m, between the fingertips
+                 ObsTerm("grasp_quat", 4, compute=grasp_quat)]                        # (w, x, y, z)
+        # joint modes: all 9 joint positions (rad; fingers m), IsaacGymEnvs' joint_tor observation
+        terms.append(ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos))
+        return terms
+
+    # ------------------------------------------------------------------ reset
+    def reset_idx(self, env_ids: torch.Tensor) -> None:
+        mask = self.env_mask(env_ids)
+        n, dev = self.num_envs, self.device
+        # Success: the episode ended with A stacked (a time-out is not one). Training logs the rate over the episodes
+        # that end (Episode/success); test mode reports each env's first episode (eval.json "success").
+        success = (self.success_buf & mask).float()
+        self.extras["episode_metrics"] = {"success": success.sum()}
+        self.extras["episode_outcomes"] = {"success": success}
+
+        noise = torch.zeros((n, 9), device=dev)
+        noise[:, :7] = self.k["frankaDofNoise"] * (2.0 * torch.rand((n, 7), device=dev) - 1.0)  # fingers stay
+        dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
+        torques = self.sim.ctrl[:, :7].clone()
+        self.sim.reset_worlds(mask)
+        self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions (it writes every world's ctrl)
+        if self.control_type == "joint_tor":  # the arm's ctrl columns are torques: none in a new episode
+            self.sim.ctrl[:, :7] = torch.where(mask.unsqueeze(1), 0.0, torques)
+        pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.k["startPositionNoise"],
+                                                    self.k["startRotationNoise"], dev)
+        zero = torch.zeros_like(pos_a)
+        self.sim.write_state(mask, root_pos=pos_a, root_quat=quat_a, root_lin_vel=zero, root_ang_vel=zero,
+                             asset="cubeA", refresh=False)
+        # The observation reads the grasp site and the cubes: poses recomputed once, after all writes.
+        self.sim.write_state(mask, root_pos=pos_b, root_quat=quat_b, root_lin_vel=zero, root_ang_vel=zero,
+                             asset="cubeB", refresh=True)
+        self.progress_buf.masked_fill_(mask, 0)
+
+
+def control_type(value: object) -> str:
+    """``env.controlType``, checked: one of CONTROL_TYPES (osc refused with the reason)."""
+    if value == "osc":
+        raise ConfigError(f"env.controlType='osc' is invalid: {OSC_REFUSED}; choose one of {list(CONTROL_TYPES)}")
+    if value not in CONTROL_TYPES:
+        raise ConfigError(f"env.controlType={value!r} is invalid: choose one of {list(CONTROL_TYPES)}")
+    return str(value)
+
+
+def sample_cubes(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float,
+                 device: torch.device | str) -> tuple[torch.Tensor, ...]:
+    """Start poses of cubes A and B in ``n`` worlds, IsaacGymEnvs' way: each xy uniform within ±``xy_noise`` of the
+    table centre, yaw uniform within ±``yaw_noise``, A at least MIN_CUBE_DISTANCE from B in xy (the first of
+    CANDIDATES draws that is; no host sync). Both rest on the table (IGE puts B 1 cm into it)."""
+    def uniform(*shape: int) -> torch.Tensor:
+        return 2.0 * torch.rand(shape, device=device) - 1.0
+
+    xy_b = centre + xy_noise * uniform(n, 2)
+    xy_a = centre + xy_noise * uniform(n, CANDIDATES, 2)
+    far = torch.linalg.norm(xy_a - xy_b.unsqueeze(1), dim=-1) >= MIN_CUBE_DISTANCE
+    first = torch.argmax(far.to(torch.uint8), dim=1)  # the first far-enough draw (0 if none is)
+    xy_a = xy_a[torch.arange(n, device=device), first]
+    pos_a = torch.cat((xy_a, torch.full((n, 1), TABLE_TOP + CUBE_A_SIZE / 2, device=device)), dim=1)
+    pos_b = torch.cat((xy_b, torch.full((n, 1), TABLE_TOP + CUBE_B_SIZE / 2, device=device)), dim=1)
+    return pos_a, pos_b, yaw_quat(yaw_noise * uniform(n)), yaw_quat(yaw_noise * uniform(n))
+
+
+def yaw_quat(yaw: torch.Tensor) -> torch.Tensor:
+    """(w, x, y, z) of a rotation by ``yaw`` about world z."""
+    zero = torch.zeros_like(yaw)
+    return torch.stack((torch.cos(0.5 * yaw), zero, zero, torch.sin(0.5 * yaw)), dim=-1)
+
+
+def quat_from_matrix(r: torch.Tensor) -> torch.Tensor:
+    """(N, 4) unit quaternions (w, x, y, z), w >= 0, of rotation matrices (N, 3, 3); stable for any angle."""
+    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
+    # |w|, |x|, |y|, |z| from the diagonal, the signs of x, y, z from the off-diagonal differences (w >= 0).
+    w = 0.5 * torch.sqrt(torch.clamp(1.0 + m00 + m11 + m22, min=0.0))
+    x = 0.5 * torch.sqrt(torch.clamp(1.0 + m00 - m11 - m22, min=0.0))
+    y = 0.5 * torch.sqrt(torch.clamp(1.0 - m00 + m11 - m22, min=0.0))
+    z = 0.5 * torch.sqrt(torch.clamp(1.0 - m00 - m11 + m22, min=0.0))
+    x = torch.copysign(x, r[:, 2, 1] - r[:, 1, 2])
+    y = torch.copysign(y, r[:, 0, 2] - r[:, 2, 0])
+    z = torch.copysign(z, r[:, 1, 0] - r[:, 0, 1])
+    return torch.stack((w, x, y, z), dim=-1)
+
+
+def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Tensor,
+                     tip_right: torch.Tensor, table_top: float = TABLE_TOP) -> dict[str, torch.Tensor]:
+    """IsaacGymEnvs' FrankaCubeStack reward quantities from positions (N, 3): ``dist``, ``lifted`` (float 0/1),
+    ``align`` and ``stacked`` (bool). The reward is ``compute_cube_stack_reward`` of them."""
+    height_a = cube_a[:, 2] - table_top  # A's centre above the table
+    d = torch.linalg.norm(cube_a - grasp, dim=-1)
+    d_left = torch.linalg.norm(cube_a - tip_left, dim=-1)
+    d_right = torch.linalg.norm(cube_a - tip_right, dim=-1)
+    dist = 1.0 - torch.tanh(10.0 * (d + d_left + d_right) / 3.0)
+    lifted = ((height_a - CUBE_A_SIZE) > 0.04).float()
+    offset = torch.zeros_like(cube_a)
+    offset[:, 2] = (CUBE_A_SIZE + CUBE_B_SIZE) / 2.0  # A's centre above B's when stacked
+    to_stacked = cube_b - cube_a + offset
+    align = (1.0 - torch.tanh(10.0 * torch.linalg.norm(to_stacked, dim=-1))) * lifted
+    dist = torch.maximum(dist, align)
+    aligned_xy = torch.linalg.norm(to_stacked[:, :2], dim=-1) < 0.02
+    on_top = torch.abs(height_a - CUBE_B_SIZE - CUBE_A_SIZE / 2.0) < 0.02
+    released = d > 0.04
+    return {"dist": dist, "lifted": lifted, "align": align, "stacked": aligned_xy & on_top & released}
+
+
+def compute_cube_stack_reward(terms: dict[str, torch.Tensor], dist_scale: float = 0.1, lift_scale: float = 1.5,
+                              align_scale: float = 2.0, stack_scale: float = 16.0) -> torch.Tensor:
+    """IsaacGymEnvs' reward: ``stack_scale`` when stacked, else the weighted dist, lift and align terms."""
+    shaped = dist_scale * terms["dist"] + lift_scale * terms["lifted"] + align_scale * terms["align"]
+    return torch.where(terms["stacked"], torch.full_like(shaped, stack_scale), shaped)

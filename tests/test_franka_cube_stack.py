@@ -1,0 +1,261 @@
+"""FrankaCubeStack (issue 32): IsaacGymEnvs' reward against a numpy transcription of its formula written here, the
+stack success on placed cubes (stacked and released, stacked but held, 3 cm off), resets (cubes on the table, far
+enough apart, within the noise), the two control types (targets and torques), the gripper, the observation against
+MuJoCo C, env.contact in the model, one-line errors, and one training iteration plus test mode on the CPU."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from isaacgymenvs_mw import make
+from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.tasks.franka_cube_stack import (compute_cube_stack_reward, cube_stack_terms, quat_from_matrix,
+                                                     sample_cubes)
+from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+TABLE_TOP = -0.1  # assets/mjcf/table.xml: 0.1 m below the robot base
+Q0 = np.array([0.0, 0.1963, 0.0, -2.6180, 0.0, 2.9416, 0.7854, 0.035, 0.035])  # IGE's start pose
+SCALES = {"dist": 0.1, "lift": 1.5, "align": 2.0, "stack": 16.0}  # IGE's FrankaCubeStack.yaml
+
+
+def reference_reward(a, b, eef, tip_l, tip_r):
+    """IsaacGymEnvs' compute_franka_reward, one env at a time in plain Python (table top at TABLE_TOP)."""
+    def norm(v):
+        return math.sqrt(sum(x * x for x in v))
+
+    h = a[2] - TABLE_TOP
+    d, dl, dr = norm(a - eef), norm(a - tip_l), norm(a - tip_r)
+    dist = 1 - math.tanh(10.0 * (d + dl + dr) / 3)
+    lifted = 1.0 if h - 0.05 > 0.04 else 0.0
+    goal = b + np.array([0.0, 0.0, 0.06]) - a
+    align = (1 - math.tanh(10.0 * norm(goal))) * lifted
+    dist = max(dist, align)
+    stacked = norm(goal[:2]) < 0.02 and abs(h - 0.07 - 0.025) < 0.02 and d > 0.04
+    reward = 16.0 if stacked else 0.1 * dist + 1.5 * lifted + 2.0 * align
+    return reward, stacked, {"dist": dist, "lifted": lifted, "align": align}
+
+
+def test_reward_terms_equal_the_reference_formula_on_constructed_states():
+    rng = np.random.default_rng(0)
+    n = 400
+    b = np.column_stack([0.45 + rng.uniform(-0.25, 0.25, n), rng.uniform(-0.25, 0.25, n), np.full(n, -0.065)])
+    # A: a quarter resting on the table, a quarter lifted, a quarter near its stacked place, a quarter stacked
+    a = b + rng.normal(0.0, 0.1, (n, 3))
+    a[: n // 4, 2] = TABLE_TOP + 0.025
+    a[n // 4: n // 2, 2] = rng.uniform(0.0, 0.2, n // 4)
+    a[n // 2: 3 * n // 4] = b[n // 2: 3 * n // 4] + [0, 0, 0.06] + rng.normal(0, 0.02, (n // 4, 3))
+    a[3 * n // 4:] = b[3 * n // 4:] + [0, 0, 0.06] + rng.uniform(-0.01, 0.01, (n // 4, 3))
+    eef = a + rng.normal(0.0, 0.05, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))
+    tip_l, tip_r = eef + rng.normal(0, 0.02, (n, 3)), eef + rng.normal(0, 0.02, (n, 3))
+    t = lambda x: torch.tensor(x, dtype=torch.float64)  # noqa: E731
+    terms = cube_stack_terms(t(a), t(b), t(eef), t(tip_l), t(tip_r))
+    reward = compute_cube_stack_reward(terms)
+    ref = [reference_reward(*v) for v in zip(a, b, eef, tip_l, tip_r)]
+    np.testing.assert_allclose(reward.numpy(), [r for r, _, _ in ref], atol=1e-12)
+    assert terms["stacked"].tolist() == [s for _, s, _ in ref]
+    for key in ("dist", "lifted", "align"):
+        np.testing.assert_allclose(terms[key].numpy(), [p[key] for _, _, p in ref], atol=1e-12)
+    stacked = terms["stacked"].numpy()
+    assert 20 < stacked.sum() < n - 20 and terms["lifted"].numpy().sum() > 50  # each branch is exercised
+
+
+@pytest.fixture(scope="module")
+def env():
+    return make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True)
+
+
+def place(env, a, b, q_arm=None):
+    """Write cube A / B positions (yaw 0, at rest) and the arm's joints into every env, then refresh the state."""
+    mask = torch.ones(env.num_envs, dtype=torch.bool)
+    quat = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(env.num_envs, 1)
+    zero = torch.zeros(env.num_envs, 3)
+    for name, pos in (("cubeA", a), ("cubeB", b)):
+        env.sim.write_state(mask, root_pos=torch.tensor(pos, dtype=torch.float32), root_quat=quat,
+                            root_lin_vel=zero, root_ang_vel=zero, asset=name, refresh=False)
+    if q_arm is not None:
+        q = torch.tensor(q_arm, dtype=torch.float32)
+        env.arm.reset(mask, q)
+    env.sim.refresh_kinematics()
+    env.refresh_state()
+
+
+def grasp_joints(env, target):
+    """Arm joints putting the grasp site at ``target``, fingers down, via the grasp test's IK (MuJoCo C)."""
+    from test_franka_grasp import ik
+
+    m = env.sim.mj_model
+    return ik(m, m.site("grasp").id, np.asarray(target, dtype=float), Q0[:7])
+
+
+def test_stack_success_only_when_aligned_on_b_and_released(env):
+    b = np.array([0.45, 0.0, TABLE_TOP + 0.035])
+    on_b = b + [0.0, 0.0, 0.06]
+    held = np.concatenate([grasp_joints(env, on_b), [0.025, 0.025]])  # grasp point at A's centre
+    away = Q0  # grasp point 10 cm above A
+    cases = {"stacked and released": (on_b, away, True), "stacked but held": (on_b, held, False),
+             "3 cm off in x, released": (on_b + [0.03, 0.0, 0.0], away, False)}
+    a = np.stack([c[0] for c in cases.values()])
+    q = np.stack([c[1] for c in cases.values()])
+    place(env, a, np.tile(b, (3, 1)), q)
+    grasp = env.arm.grasp_pos().numpy()
+    np.testing.assert_allclose(grasp[1], on_b, atol=2e-5)  # the IK pose is what the sim has
+    assert np.linalg.norm(grasp[0] - on_b) > 0.04
+    assert env.check_success().tolist() == [c[2] for c in cases.values()]
+    env.compute_reward()
+    assert env.rew_buf[0].item() == pytest.approx(16.0)
+    assert env.rew_buf[1].item() < 16.0
+
+
+def test_an_episode_ends_on_stacking_and_counts_as_a_success(env):
+    env.reset()
+    b = np.array([0.45, 0.0, TABLE_TOP + 0.035])
+    a = np.stack([b + [0, 0, 0.06], b + [0, 0.2, -0.01], b + [0, -0.2, -0.01]])  # env 0 stacked, 1-2 on the table
+    place(env, a, np.tile(b, (3, 1)), np.tile(Q0, (3, 1)))
+    _, rew, done, extras = env.step(torch.tensor([[0.0] * 7 + [1.0]] * 3))  # hold still, gripper open
+    assert done.tolist() == [1, 0, 0]
+    assert rew[0].item() == pytest.approx(16.0)
+    assert extras["episode_outcomes"]["success"].tolist() == [1.0, 0.0, 0.0]
+    assert extras["episode_metrics"]["success"].item() == 1.0
+    assert not torch.allclose(env.cube_a.root_pos[0], torch.tensor(a[0], dtype=torch.float32))  # reset
+
+
+def test_cube_draws_rest_on_the_table_apart_and_within_the_noise():
+    n = 20000
+    centre = torch.tensor([0.45, 0.0])
+    pos_a, pos_b, quat_a, quat_b = sample_cubes(n, centre, 0.25, 0.785, "cpu")
+    apart = torch.linalg.norm(pos_a[:, :2] - pos_b[:, :2], dim=1)
+    assert torch.all(apart >= 0.1697)  # IGE: 2 (0.05 + 0.07) sqrt(2) / 2
+    for pos, half in ((pos_a, 0.025), (pos_b, 0.035)):
+        assert torch.all((pos[:, :2] - centre).abs() <= 0.25)
+        np.testing.assert_allclose(pos[:, 2].numpy(), TABLE_TOP + half, atol=1e-7)  # both on the table, B too
+        # uniform in the square: each quarter of it gets about a quarter of the draws
+        quarter = ((pos[:, 0] > 0.45).int() * 2 + (pos[:, 1] > 0).int()).bincount(minlength=4) / n
+        assert torch.all((quarter - 0.25).abs() < 0.03)
+    for quat in (quat_a, quat_b):
+        np.testing.assert_allclose(torch.linalg.norm(quat, dim=1).numpy(), 1.0, atol=1e-6)
+        assert torch.all(quat[:, 1:3] == 0.0)  # yaw only
+        yaw = 2 * torch.atan2(quat[:, 3], quat[:, 0])
+        assert torch.all(yaw.abs() <= 0.785 + 1e-6) and yaw.abs().max() > 0.78
+
+
+def test_reset_places_arm_and_cubes_as_ige(env):
+    for _ in range(3):
+        env.reset()
+        q = env.sim.dof_pos.numpy()
+        assert np.all(np.abs(q[:, :7] - Q0[:7]) <= 0.25 + 1e-6)
+        np.testing.assert_allclose(q[:, 7:], 0.035, atol=1e-7)  # fingers stay at the start opening
+        lo, hi = env.arm.dof_lower.numpy(), env.arm.dof_upper.numpy()
+        assert np.all((q >= lo - 1e-6) & (q <= hi + 1e-6))
+        a, b = env.cube_a.root_pos.numpy(), env.cube_b.root_pos.numpy()
+        np.testing.assert_allclose(a[:, 2], TABLE_TOP + 0.025, atol=1e-6)
+        np.testing.assert_allclose(b[:, 2], TABLE_TOP + 0.035, atol=1e-6)
+        assert np.all(np.linalg.norm(a[:, :2] - b[:, :2], axis=1) >= 0.1697)
+        assert np.all(np.abs(a[:, :2] - [0.45, 0.0]) <= 0.25) and np.all(np.abs(b[:, :2] - [0.45, 0.0]) <= 0.25)
+        np.testing.assert_array_equal(env.cube_a.root_lin_vel.numpy(), 0.0)
+
+
+def test_observation_equals_mujoco_c_on_the_same_state(env):
+    obs = env.reset()["obs"].numpy()
+    assert env.obs_layout.names == ["cube_a_quat", "cube_a_pos", "cube_a_to_b", "grasp_pos", "grasp_quat", "dof_pos"]
+    m = env.sim.mj_model
+    d = mujoco.MjData(m)
+    for i in range(env.num_envs):
+        d.qpos[:] = env.sim.qpos[i].numpy()
+        mujoco.mj_kinematics(m, d)
+        site_quat = np.zeros(4)
+        mujoco.mju_mat2Quat(site_quat, d.site("grasp").xmat)
+        site_quat *= np.sign(site_quat[0])
+        expected = np.concatenate([d.body("cubeA/cube").xquat, d.body("cubeA/cube").xpos,
+                                   d.body("cubeB/cube").xpos - d.body("cubeA/cube").xpos, d.site("grasp").xpos,
+                                   site_quat, d.qpos[:9]])
+        np.testing.assert_allclose(obs[i], np.clip(expected, -5, 5), atol=2e-5)
+
+
+def test_quat_from_matrix_inverts_mujocos_quat_to_matrix():
+    rng = np.random.default_rng(1)
+    quats = rng.normal(size=(200, 4))
+    quats[:4] = [[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [0, 0.6, 0.8, 0]]  # 180-degree turns: w = 0
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    quats *= np.where(quats[:, :1] < 0, -1, 1)
+    mats = np.zeros((200, 9))
+    for q, mat in zip(quats, mats):
+        mujoco.mju_quat2Mat(mat, q)
+    got = quat_from_matrix(torch.tensor(mats.reshape(-1, 3, 3)))
+    same = np.minimum(np.abs(got.numpy() - quats).max(1), np.abs(got.numpy() + quats).max(1))  # w = 0: either sign
+    assert same.max() < 1e-9
+
+
+def test_joint_pos_moves_arm_targets_and_the_gripper_opens_or_closes(env):
+    env.reset()
+    start = env.arm.targets.clone()
+    a = torch.tensor([[0.5, -1.0, 0.2, 0.0, 1.0, -0.3, 0.7, -0.2],
+                      [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                      [1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.3]])
+    env.pre_physics_step(a)
+    step = 2.0 / 60.0  # actionScale x control dt (rad)
+    expected = np.clip(start.numpy()[:, :7] + a.numpy()[:, :7] * step, env.arm.target_lower.numpy()[:7],
+                       env.arm.target_upper.numpy()[:7])
+    np.testing.assert_allclose(env.sim.ctrl[:, :7].numpy(), expected, atol=1e-6)
+    np.testing.assert_allclose(env.sim.ctrl[:, 7].numpy(), [0.0, 0.04, 0.04])  # a < 0 closes, a >= 0 opens (IGE)
+
+
+def test_joint_tor_drives_the_arm_with_torques_at_the_limits():
+    env = make("FrankaCubeStack", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True,
+               overrides=["task.env.controlType=joint_tor"])
+    m = env.sim.mj_model
+    assert [m.actuator(f"actuator{i}").biastype[0] for i in range(1, 8)] == [0] * 7  # motors, no position bias
+    assert m.actuator("gripper").biastype[0] == int(mujoco.mjtBias.mjBIAS_AFFINE)  # the gripper stays a servo
+    env.reset()
+    a = torch.tensor([[0.5, -1.0, 0.2, 0.0, 1.0, -0.3, 0.7, 1.0], [-1.0, 1.0, -0.5, 0.5, -1.0, 1.0, 0.0, -1.0]])
+    env.step(a)
+    limits = np.array([87.0] * 4 + [12.0] * 3)  # N m, franka_ros / FCI
+    np.testing.assert_allclose(env.sim.ctrl[:, :7].numpy(), a[:, :7].numpy() * limits, rtol=1e-6)
+    np.testing.assert_allclose(env.sim.actuator_force[:, :7].numpy(), a[:, :7].numpy() * limits, rtol=1e-5)
+    assert env.num_obs == 26  # IGE's joint_tor observation: all 9 joint positions (26 values)
+
+
+def test_env_contact_reaches_the_model(env):
+    m = env.sim.mj_model
+    for geom in ("left_finger_collision", "right_finger_collision", "cubeA/box", "cubeB/box"):
+        assert m.geom(geom).condim[0] == 4
+        np.testing.assert_allclose(m.geom(geom).friction, [1.0, 0.005, 0.0001])
+    assert m.geom("link1_collision").condim[0] == 3  # not selected: the MJCF's own
+    cfg = compose_config(["task=FrankaCubeStack", "num_envs=1", "sim_device=cpu", "rl_device=cpu", "headless=True"])
+    cfg.task.env.contact = {"cube[AB]/box": {"condim": 6, "friction": [1.5, 0.02, 0.001]}}
+    m = build_task(cfg).sim.mj_model
+    assert m.geom("cubeA/box").condim[0] == m.geom("cubeB/box").condim[0] == 6
+    np.testing.assert_allclose(m.geom("cubeB/box").friction, [1.5, 0.02, 0.001])
+    assert m.geom("left_finger_collision").condim[0] == 3  # the new env.contact no longer selects the fingers
+
+
+@pytest.mark.parametrize("value, message", [
+    ("foo", r"^task\.env\.controlType='foo' is invalid: choose one of \['joint_pos', 'joint_tor'\]$"),
+    ("osc", r"^task\.env\.controlType='osc' is invalid: osc \(IsaacGymEnvs' operational-space control\) is not "
+            r"available: it needs each world's mass matrix and hand Jacobian, which the simulator does not expose "
+            r"yet; choose one of \['joint_pos', 'joint_tor'\]$"),
+])
+def test_control_type_errors_are_one_line_naming_the_key(value, message):
+    with pytest.raises(ConfigError, match=message):
+        make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+             overrides=[f"task.env.controlType={value}"])
+
+
+def test_training_one_iteration_then_test_mode_reports_a_success_rate(tmp_path, run_args):
+    cfg = compose_config(["task=FrankaCubeStack", "num_envs=4", "max_iterations=1", "task.env.episodeLength_s=0.1",
+                          "train.runner.num_steps_per_env=8", *run_args])
+    summary = run(cfg)
+    assert summary["iterations"] == 1 and summary["success"] == 0.0  # 6-step episodes ended, none stacked
+    run_dir = [p for p in (tmp_path / "runs" / "FrankaCubeStack").iterdir() if p.is_dir()][0]
+    eval_cfg = compose_config(["task=FrankaCubeStack", "num_envs=4", "test=True",
+                               f"checkpoint={run_dir / 'model_1.pt'}", "task.env.episodeLength_s=0.1", *run_args])
+    result = run(eval_cfg)
+    written = json.loads((run_dir / "eval.json").read_text())
+    assert written["success"] == result["success"] == 0.0 and written["episodes"] == 4
