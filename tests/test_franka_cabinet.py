@@ -85,6 +85,11 @@ def test_observation_is_23_values_and_matches_mujoco_c(env):
         obs, *_ = env.step(torch.rand(2, 8) * 2 - 1)
     assert obs["obs"].shape == (2, 23) and env.obs_layout.names == ["dof_pos", "dof_vel", "to_handle", "drawer_pos",
                                                                     "drawer_vel"]
+    # Body and site poses are those the last physics substep started from (MuJoCo computes them before it
+    # integrates); recompute them from the current state so that both sides see one state.
+    env.sim.refresh_kinematics()
+    env.compute_observations()
+    obs = {"obs": env.obs_buf.clone()}
     # MuJoCo C on world 0's state
     m = env.sim.mj_model
     d = mujoco.MjData(m)
