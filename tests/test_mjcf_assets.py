@@ -94,9 +94,13 @@ def test_default_drive_mode_covers_only_unactuated_joints():
     np.testing.assert_allclose(task.sim.qfrc_actuator[:, 6 + ankle].numpy(), [4.0, -2.0], rtol=1e-5)
 
 
-def test_yaml_drive_on_an_actuated_joint_is_an_error_naming_it():
-    with pytest.raises(ValueError, match=r"driveMode.*left_hip.*left_hip_motor"):
-        make_walker(walker_cfg(control={"driveMode": {"left_hip": "position"}}))
+def test_yaml_drive_on_an_actuated_joint_rewrites_its_actuator_in_place():
+    task = make_walker(walker_cfg(control={"driveMode": {"left_hip": "position"}, "stiffness": {"left_hip": 40.0},
+                                           "damping": {"left_hip": 2.0}}))
+    m = task.sim.mj_model
+    assert task.sim.actuator_names == ["right_hip_motor", "left_hip_motor"]  # one per joint, names and order kept
+    a = m.actuator("left_hip_motor").id
+    assert m.actuator_gainprm[a, 0] == 40.0 and m.actuator_biasprm[a, :3].tolist() == [0.0, -40.0, -2.0]
 
 
 def test_effort_drive_without_a_torque_cap_is_an_error():

@@ -29,6 +29,8 @@ REPO = TESTS_DIR.parent
 ASSETS_DIR = REPO / "assets"
 RECORD = TESTS_DIR / "assets" / "model_requests.json"
 TASKS = sorted(p.stem for p in (REPO / "cfg" / "task").glob("*.yaml"))
+# The tasks that existed at the move (commit 3b2a975); later tasks were written against the sim layer's request.
+RECORDED_TASKS = sorted(json.loads(RECORD.read_text()))
 
 
 def task_cfg(name: str) -> dict:
@@ -75,7 +77,7 @@ def new_request(cfg: dict):
     return request_from_config(cfg["env"], cfg.get("sim", {}), cfg.get("yaml_dir"), ASSETS_DIR)
 
 
-@pytest.mark.parametrize("task", TASKS)
+@pytest.mark.parametrize("task", RECORDED_TASKS)
 def test_request_matches_the_recorded_vec_task_request(task):
     recorded = json.loads(RECORD.read_text())
     assert task in recorded, f"{task}: no recorded request; record it (module docstring)"
@@ -89,9 +91,10 @@ def test_request_matches_vec_task_model_request_live(task):
 
 
 def test_every_shipped_task_was_recorded_with_its_differences():
-    """The record covers all shipped tasks, and they differ (a record of one request repeated would prove little)."""
+    """The record covers the 10 tasks shipped at the move, and they differ (a record of one request repeated would
+    prove little)."""
     recorded = json.loads(RECORD.read_text())
-    assert set(recorded) == set(TASKS)
+    assert len(recorded) == 10 and set(recorded) <= set(TASKS)
     assert len({json.dumps(v, sort_keys=True) for v in recorded.values()}) >= 6
 
 

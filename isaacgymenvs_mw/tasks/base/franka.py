@@ -62,8 +62,9 @@ class FrankaArm:
         Body poses follow at the next physics step (call ``sim.refresh_kinematics`` to read them before)."""
         dof_pos = torch.cat((dof_pos[:, :8], dof_pos[:, 7:8]), dim=1)  # the coupled fingers open alike
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos), refresh=False)
-        self.targets.copy_(torch.where(mask.unsqueeze(1), dof_pos[:, :8], self.targets))
-        self.ctrl.copy_(self.targets)
+        rows = mask.unsqueeze(1)
+        self.targets.copy_(torch.where(rows, dof_pos[:, :8], self.targets))
+        self.ctrl.copy_(torch.where(rows, self.targets, self.ctrl))  # the running worlds keep their commands
 
     # ------------------------------------------------------------------ state
     def scaled_dof_pos(self) -> torch.Tensor:
