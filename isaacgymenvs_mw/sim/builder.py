@@ -20,6 +20,7 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
+from isaacgymenvs_mw.sim.cameras import CameraSpec, add_cameras
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
 from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
@@ -137,6 +138,8 @@ class ModelRequest:
     assets: Sequence[SceneAsset] = ()
     # {geom name regex: GeomContact}: contact properties of the selected geoms of the whole scene (env.contact).
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
+    # Cameras (env.cameras, sim/cameras.py), added on their bodies once the scene is composed.
+    cameras: Sequence[CameraSpec] = ()
 
     def body_names(self) -> list[str]:
         """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""
@@ -305,6 +308,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         for geom in ground:
             geom.contype, geom.conaffinity = contype, conaffinity
     _set_geom_contacts(spec, request.geom_contacts)
+    add_cameras(spec, request.cameras, lambda pattern, key: _one_body(spec, pattern, key))
 
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
@@ -368,6 +372,16 @@ def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dic
                     type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.5 * (x1 - x0) + 1e-4, 0.5 * (y1 - y0) + 1e-4, 0.5],
                     pos=[0.5 * (x0 + x1), 0.5 * (y0 + y1), -0.5])))
     return parts
+
+
+def _one_body(spec: mujoco.MjSpec, pattern: str, key: str) -> str:
+    """The one body of the composed scene whose whole name ``pattern`` matches (``name_matches``' rule)."""
+    names = [b.name for b in spec.bodies if b.name != spec.worldbody.name]
+    hits = name_matches(pattern, names, key, "bodies")
+    if len(hits) != 1:
+        raise ConfigError(f"{key}: '{pattern}' matches {len(hits)} bodies {[names[i] for i in hits]}; give a pattern "
+                          "that selects one")
+    return names[hits[0]]
 
 
 def _check_joint(spec: mujoco.MjSpec, name: str, key: str) -> None:

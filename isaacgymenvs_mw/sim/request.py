@@ -23,6 +23,8 @@ from typing import Mapping
 from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, ModelRequest, SceneAsset,
                                           SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names, match_joint_values,
                                           movable_joint_names)
+from isaacgymenvs_mw.sim.cameras import camera_specs
+from isaacgymenvs_mw.utils.config import check_entry
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 
 # Every key the task YAML's `sim` section may hold (docs/config.md, "sim"); any other is a typo or a key of another
@@ -41,8 +43,8 @@ TorqueSpeed = dict[str, tuple[float, float, float]]
 def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
                         assets_dir: Path) -> tuple[ModelRequest, TorqueSpeed]:
     """The model a task YAML asks for, from ``env.asset``, ``env.assets``, ``env.control``, ``env.plane``,
-    ``env.baseInitState`` and ``sim``; and ``env.control.torqueSpeed`` per joint (empty when absent), which the
-    built Simulator needs (``Simulator.enable_torque_speed_limit``).
+    ``env.baseInitState``, ``env.cameras`` and ``sim``; and ``env.control.torqueSpeed`` per joint (empty when
+    absent), which the built Simulator needs (``Simulator.enable_torque_speed_limit``).
 
     ``yaml_dir``: the task YAML's folder (relative asset roots are resolved against it; None: the working
     directory). ``assets_dir``: the folder an empty ``assetRoot`` means (the repository's ``assets/``).
@@ -88,6 +90,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
         spec=spec,
         assets=scene_assets(env.get("assets"), yaml_dir, assets_dir, collapse),
         geom_contacts=geom_contacts(env.get("contact")),
+        cameras=camera_specs(env.get("cameras")),
     )
     return request, torque_speed
 
@@ -139,11 +142,7 @@ def scene_assets(cfg: Mapping | None, yaml_dir: str | None, assets_dir: Path,
     taken: dict[str, str] = {}  # prefix -> the asset that has it
     for name, entry in cfg.items():
         key = f"env.assets.{name}"
-        if not hasattr(entry, "items"):
-            raise ConfigError(f"{key}={entry!r} is invalid: give a mapping with keys {list(SCENE_ASSET_KEYS)}")
-        unknown = sorted(str(k) for k in entry if k not in SCENE_ASSET_KEYS)
-        if unknown:
-            raise ConfigError(f"{key}: unknown key(s) {unknown}; valid keys: {list(SCENE_ASSET_KEYS)}")
+        check_entry(entry, key, SCENE_ASSET_KEYS)
         prefix = str(entry.get("prefix", f"{name}/"))
         if not prefix:
             # The main asset's names are unprefixed: an empty prefix would let this asset's names clash with them.

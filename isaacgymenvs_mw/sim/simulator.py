@@ -19,6 +19,7 @@ import warp as wp
 
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
+from isaacgymenvs_mw.sim.cameras import CameraSpec, Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
@@ -69,6 +70,8 @@ class Simulator:
             sums in a fixed order. With mujoco-warp 4.0.0 that is not enough for identical GPU runs (its contact and
             constraint sorts are not implemented; docs/config.md, "Deterministic mode"). Costs speed on GPU (12x for
             Go1 on an H100); the CPU device runs kernels serially and reproduces runs either way.
+        cameras: the model's cameras to render (``env.cameras``, already added to ``mj_model`` by ``build_model``);
+            their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
     """
 
     def __init__(
@@ -82,6 +85,7 @@ class Simulator:
         per_world_fields: Sequence[str] = (),
         use_graphs: bool | None = None,
         deterministic: bool = False,
+        cameras: Sequence[CameraSpec] = (),
     ) -> None:
         if num_worlds < 1:
             raise ConfigError(f"numEnvs must be >= 1, got {num_worlds}")
@@ -118,6 +122,9 @@ class Simulator:
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
+        self.cameras: Cameras | None = None
+        if cameras:
+            self.cameras = Cameras(mj_model, self.model, self.data, cameras, self.num_worlds, self.wp_device)
 
     def _load_kernels(self, nconmax: int | None, njmax: int | None) -> None:
         """Compile every kernel module that stepping, forward and kinematics use, in parallel, before the first step
@@ -311,6 +318,21 @@ class Simulator:
     def forward(self) -> None:
         """Recompute every derived quantity (kinematics, contacts, sensors) from qpos/qvel/ctrl."""
         self._run("forward", lambda: mjw.forward(self.model, self.data))
+
+    def camera(self, name: str) -> CameraView:
+        """The images of camera ``name`` (an ``env.cameras`` key) for every world: ``rgb`` (N, 3, H, W) uint8,
+        ``depth`` (N, 1, H, W) float32 metres, ``segmentation`` (N, 1, H, W) int32 geom ids (sim/cameras.py)."""
+        views = self.cameras.views if self.cameras is not None else {}
+        if name not in views:
+            raise ConfigError(f"camera '{name}' is not declared in env.cameras; cameras: {list(views)}")
+        return views[name]
+
+    def render_cameras(self) -> None:
+        """Draw every camera of every world from the current ``qpos`` (poses, BVH refit, render, unpack: one graph
+        replay on CUDA); the ``camera(name)`` views then hold the new images."""
+        if self.cameras is not None:
+            self._run("render", self.cameras.launch)
+            self.cameras.renders += 1
 
     def refresh_kinematics(self) -> None:
         """Recompute body poses (xpos, xquat, ...) after writing qpos, without collisions or dynamics."""

@@ -115,6 +115,16 @@ def whole_number(value, key: str, minimum: int) -> int:
     return number
 
 
+def check_entry(entry, key: str, keys: Sequence[str]) -> None:
+    """``entry`` (one named entry of a YAML mapping, e.g. ``env.assets.<name>``) is a mapping of ``keys`` only;
+    otherwise an error naming ``key``."""
+    if not hasattr(entry, "items"):
+        raise ConfigError(f"{key}={entry!r} is invalid: give a mapping with keys {list(keys)}")
+    unknown = sorted(str(k) for k in entry if k not in keys)
+    if unknown:
+        raise ConfigError(f"{key}: unknown key(s) {unknown}; valid keys: {list(keys)}")
+
+
 def real_number(value, key: str, low: float | None = None, high: float | None = None, low_open: bool = False) -> float:
     """``value`` as a float in [low, high] (``low_open``: above low); text, booleans, NaN fail naming ``key``."""
     ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

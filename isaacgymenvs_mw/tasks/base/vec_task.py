@@ -159,6 +159,7 @@ class VecTask(ObservationGroups):
             per_world_fields=tuple(dict.fromkeys(fields)),
             use_graphs=sim.get("useGraphs"),
             deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
+            cameras=request.cameras,
         )
 
     def _setup_randomization(self) -> None:
