@@ -16,7 +16,7 @@ import torch
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks.build import build_task
-from isaacgymenvs_mw.tasks.franka_cube_stack import (compute_cube_stack_reward, cube_stack_terms, quat_from_matrix,
+from isaacgymenvs_mw.tasks.franka_cube_stack import (compute_cube_stack_reward, osc_torques, cube_stack_terms, quat_from_matrix,
                                                      sample_cubes)
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -237,10 +237,8 @@ def test_env_contact_reaches_the_model(env):
 
 
 @pytest.mark.parametrize("value, message", [
-    ("foo", r"^task\.env\.controlType='foo' is invalid: choose one of \['joint_pos', 'joint_tor'\]$"),
-    ("osc", r"^task\.env\.controlType='osc' is invalid: osc \(IsaacGymEnvs' operational-space control\) is not "
-            r"available: it needs each world's mass matrix and hand Jacobian, which the simulator does not expose "
-            r"yet; choose one of \['joint_pos', 'joint_tor'\]$"),
+    ("foo", r"^task\.env\.controlType='foo' is invalid: choose one of \['joint_pos', 'joint_tor', 'osc'\]$"),
+    ("OSC", r"^task\.env\.controlType='OSC' is invalid: choose one of \['joint_pos', 'joint_tor', 'osc'\]$"),
 ])
 def test_control_type_errors_are_one_line_naming_the_key(value, message):
     with pytest.raises(ConfigError, match=message):
@@ -259,3 +257,46 @@ def test_training_one_iteration_then_test_mode_reports_a_success_rate(tmp_path, 
     result = run(eval_cfg)
     written = json.loads((run_dir / "eval.json").read_text())
     assert written["success"] == result["success"] == 0.0 and written["episodes"] == 4
+
+
+# ------------------------------------------------------------------------------------- osc
+def test_osc_law_equals_the_formula_written_with_numpy():
+    rng = np.random.default_rng(5)
+    n, k = 4, 7
+    a = rng.normal(size=(n, k, k))
+    mass = a @ a.transpose(0, 2, 1) + k * np.eye(k)  # symmetric positive definite
+    jac = rng.normal(size=(n, 6, k))
+    q, qd, rest = rng.normal(size=(n, k)), rng.normal(size=(n, k)), rng.normal(size=k)
+    err = rng.normal(size=(n, 6)) * 0.1
+    kp, kp_null = 150.0, 10.0
+    expected = []
+    for i in range(n):
+        m_inv = np.linalg.inv(mass[i])
+        lam = np.linalg.inv(jac[i] @ m_inv @ jac[i].T)
+        tau = jac[i].T @ lam @ (kp * err[i] - 2 * np.sqrt(kp) * jac[i] @ qd[i])
+        wrapped = np.mod(rest - q[i] + np.pi, 2 * np.pi) - np.pi
+        null = mass[i] @ (kp_null * wrapped - 2 * np.sqrt(kp_null) * qd[i])
+        tau += (np.eye(k) - jac[i].T @ lam @ jac[i] @ m_inv) @ null
+        expected.append(tau)
+    t = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+    got = osc_torques(t(err), t(q), t(qd), t(rest), t(mass), t(jac), kp, kp_null).numpy()
+    np.testing.assert_allclose(got, np.array(expected), rtol=1e-9, atol=1e-9)
+
+
+def test_osc_moves_the_grasp_point_along_the_commanded_axis():
+    env = make("FrankaCubeStack", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
+               overrides=["task.env.controlType=osc", "task.env.frankaDofNoise=0.0"])
+    assert env.num_obs == 19  # IGE's osc observation
+    env.reset()
+    env.step(torch.zeros(2, 8))
+    start = env.arm.grasp_pos().clone()
+    action = torch.zeros(2, 8)
+    action[0, 0] = 1.0   # world 0: +x
+    action[1, 2] = -1.0  # world 1: -z
+    for _ in range(30):  # half a second
+        env.step(action)
+    moved = env.arm.grasp_pos() - start
+    # The commanded axis dominates. The law holds no orientation (a zero rotation command only damps the hand's
+    # spin, as IGE's), so going down the hand tilts and the grasp point, 10 cm from the wrist, drifts along x.
+    assert moved[0, 0] > 0.03 and abs(moved[0, 1]) < 0.3 * moved[0, 0] and abs(moved[0, 2]) < 0.3 * moved[0, 0]
+    assert moved[1, 2] < -0.03 and abs(moved[1, 0]) < 0.7 * -moved[1, 2] and abs(moved[1, 1]) < 0.3 * -moved[1, 2]

@@ -11,8 +11,10 @@ Control (``env.controlType``):
     the joint ranges (as FrankaCabinet);
   * ``joint_tor``: the arm joints' torques are ``a x`` their limits (87 / 12 N m), IsaacGymEnvs' joint_tor, by
     rewriting the MJCF's arm servos as motors (``env.control.driveMode: {'joint[1-7]': effort}``);
-  * ``osc`` (IsaacGymEnvs' default) is refused: it needs the mass matrix and the hand Jacobian per world, which the
-    Simulator does not expose (docs/config.md, "FrankaCubeStack").
+  * ``osc``: IsaacGymEnvs' operational-space control. The first 6 actions x ``oscCommandLimit`` are a pose error of
+    the grasp frame (m, rad; world axes), turned into arm torques through the task-space inertia from the mass
+    matrix and the grasp site's Jacobian (``sim.dynamics.SiteDynamics``), plus a null-space pull toward
+    ``startDofPos``; gains ``oscKp`` and ``oscKpNull``, critically damped (kd = 2 sqrt(kp)), as IGE.
   The last action is the gripper in every mode: >= 0 opens the fingers (0.04 m each), < 0 closes them.
 
 Differences from IsaacGymEnvs, on purpose: cube B rests on the table (IGE spawns it with cube A's half-size, 1 cm
@@ -28,15 +30,15 @@ import math
 
 import torch
 
+from isaacgymenvs_mw.sim.dynamics import SiteDynamics
 from isaacgymenvs_mw.tasks.base.franka import FrankaArm
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-CONTROL_TYPES = ("joint_pos", "joint_tor")
-OSC_REFUSED = ("osc (IsaacGymEnvs' operational-space control) is not available: it needs each world's mass matrix "
-               "and hand Jacobian, which the simulator does not expose yet")
+CONTROL_TYPES = ("joint_pos", "joint_tor", "osc")
+TORQUE_CONTROL = ("joint_tor", "osc")  # the arm's actuators are torque motors
 # env keys of the task YAML that are plain numbers
 _NUMBER_KEYS = ("actionScale", "frankaDofNoise", "startPositionNoise", "startRotationNoise")
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
@@ -66,7 +68,7 @@ class FrankaCubeStack(VecTask):
         if missing:
             raise ConfigError(f"FrankaCubeStack: the task YAML's env section lacks {missing}")
         self.control_type = control_type(env.get("controlType", "joint_pos"))
-        if self.control_type == "joint_tor":
+        if self.control_type in TORQUE_CONTROL:
             # The MJCF's arm servos become torque motors (same names and ctrl columns, force capped at 87 / 12 N m).
             control = env.setdefault("control", {})
             control["driveMode"] = {**dict(control.get("driveMode") or {}), "joint[1-7]": "effort"}
@@ -87,7 +89,18 @@ class FrankaCubeStack(VecTask):
         self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
                                    self.device, key="env")
         self.terms: dict[str, torch.Tensor] = {}
+        if self.control_type == "osc":
+            self._init_osc(env)
         self.build_observation_layouts()
+
+    def _init_osc(self, env: dict) -> None:
+        limit = [float(v) for v in env.get("oscCommandLimit", ())]
+        if len(limit) != 6 or min(limit) <= 0:
+            raise ConfigError(f"env.oscCommandLimit={env.get('oscCommandLimit')!r} is invalid: give 6 numbers > 0 "
+                              "(the largest commanded pose error along x, y, z (m) and about them (rad))")
+        self.osc_command_limit = torch.tensor(limit, device=self.device)
+        self.osc_kp, self.osc_kp_null = float(env["oscKp"]), float(env["oscKpNull"])
+        self.dynamics = SiteDynamics(self.sim, self.arm.grasp_site, range(7))
 
     # ------------------------------------------------------------------ pre-physics
     def pre_physics_step(self, actions: torch.Tensor) -> None:
@@ -95,8 +108,15 @@ class FrankaCubeStack(VecTask):
         if self.control_type == "joint_pos":
             delta = torch.cat((actions[:, :7] * self.arm_step, (grip - self.arm.targets[:, 7]).unsqueeze(1)), dim=1)
             self.arm.move_targets(delta)
-        else:  # joint_tor
+        elif self.control_type == "joint_tor":
             self.sim.ctrl[:, :7] = actions[:, :7] * self.torque_limit
+            self.sim.ctrl[:, 7] = grip
+        else:  # osc: the torques for this step's pose error, held over the step's physics substeps (as IGE)
+            q, qd = self.sim.dof_pos[:, :7], self.sim.dof_vel[:, :7]
+            torques = osc_torques(actions[:, :6] * self.osc_command_limit, q, qd, self.start_dof_pos[:7],
+                                  self.dynamics.mass_matrix(), self.dynamics.jacobian(), self.osc_kp,
+                                  self.osc_kp_null)
+            self.sim.ctrl[:, :7] = torch.clamp(torques, -self.torque_limit, self.torque_limit)
             self.sim.ctrl[:, 7] = grip
 
     # ------------------------------------------------------------------ post-physics
@@ -142,8 +162,10 @@ class FrankaCubeStack(VecTask):
                          compute=lambda: self.cube_b.root_pos - self.cube_a.root_pos),  # m, B - A
                  ObsTerm("grasp_pos", 3, compute=self.arm.grasp_pos),                 # m, between the fingertips
                  ObsTerm("grasp_quat", 4, compute=grasp_quat)]                        # (w, x, y, z)
-        # joint modes: all 9 joint positions (rad; fingers m), IsaacGymEnvs' joint_tor observation
-        terms.append(ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos))
+        if self.control_type == "osc":  # IGE's osc observation: the fingers only (m)
+            terms.append(ObsTerm("finger_pos", 2, compute=lambda: self.sim.dof_pos[:, 7:9]))
+        else:  # joint modes: all 9 joint positions (rad; fingers m), IsaacGymEnvs' joint_tor observation
+            terms.append(ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos))
         return terms
 
     # ------------------------------------------------------------------ reset
@@ -162,7 +184,7 @@ class FrankaCubeStack(VecTask):
         torques = self.sim.ctrl[:, :7].clone()
         self.sim.reset_worlds(mask)
         self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions (it writes every world's ctrl)
-        if self.control_type == "joint_tor":  # the arm's ctrl columns are torques: none in a new episode
+        if self.control_type in TORQUE_CONTROL:  # the arm's ctrl columns are torques: none in a new episode
             self.sim.ctrl[:, :7] = torch.where(mask.unsqueeze(1), 0.0, torques)
         pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.k["startPositionNoise"],
                                                     self.k["startRotationNoise"], dev)
@@ -176,9 +198,7 @@ class FrankaCubeStack(VecTask):
 
 
 def control_type(value: object) -> str:
-    """``env.controlType``, checked: one of CONTROL_TYPES (osc refused with the reason)."""
-    if value == "osc":
-        raise ConfigError(f"env.controlType='osc' is invalid: {OSC_REFUSED}; choose one of {list(CONTROL_TYPES)}")
+    """``env.controlType``, checked: one of CONTROL_TYPES."""
     if value not in CONTROL_TYPES:
         raise ConfigError(f"env.controlType={value!r} is invalid: choose one of {list(CONTROL_TYPES)}")
     return str(value)
@@ -248,3 +268,28 @@ def compute_cube_stack_reward(terms: dict[str, torch.Tensor], dist_scale: float 
     """IsaacGymEnvs' reward: ``stack_scale`` when stacked, else the weighted dist, lift and align terms."""
     shaped = dist_scale * terms["dist"] + lift_scale * terms["lifted"] + align_scale * terms["align"]
     return torch.where(terms["stacked"], torch.full_like(shaped, stack_scale), shaped)
+
+
+def osc_torques(pose_error: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, q_rest: torch.Tensor,
+                mass: torch.Tensor, jacobian: torch.Tensor, kp: float, kp_null: float) -> torch.Tensor:
+    """IsaacGymEnvs' operational-space control law: arm torques (N, k) that pull the end effector by ``pose_error``
+    (N, 6) with stiffness ``kp`` and critical damping, plus a null-space pull toward ``q_rest``.
+
+    tau = J^T Lambda (kp e - kd J qd) + (I - J^T Jbar^T) M (kp_null (q_rest - q) - kd_null qd), Lambda = (J M^-1
+    J^T)^-1, Jbar^T = Lambda J M^-1, kd = 2 sqrt(kp). Inverses without error checks (``inv_ex``): a check would wait
+    on the GPU; a singular arm pose gives large, clamped torques for that step, not a stall.
+    """
+    kd, kd_null = 2.0 * math.sqrt(kp), 2.0 * math.sqrt(kp_null)
+    mass_inv = torch.linalg.inv_ex(mass)[0]
+    jt = jacobian.transpose(1, 2)
+    task_inertia = torch.linalg.inv_ex(jacobian @ mass_inv @ jt)[0]  # (N, 6, 6)
+    eef_vel = (jacobian @ qd.unsqueeze(-1)).squeeze(-1)
+    force = (kp * pose_error - kd * eef_vel).unsqueeze(-1)
+    torque = jt @ (task_inertia @ force)
+    # The pull toward the rest pose (wrapped to (-pi, pi]), in the null space of the task: it does not move the hand.
+    wrapped = torch.remainder(q_rest - q + math.pi, 2.0 * math.pi) - math.pi
+    rest = kp_null * wrapped - kd_null * qd
+    jbar_t = task_inertia @ jacobian @ mass_inv  # (N, 6, k)
+    eye = torch.eye(q.shape[1], device=q.device, dtype=q.dtype).expand_as(mass)
+    torque = torque + (eye - jt @ jbar_t) @ (mass @ rest.unsqueeze(-1))
+    return torque.squeeze(-1)
