@@ -2,7 +2,8 @@
 robot runtime needs (docs/deploy.md).
 
 ``out_dir`` receives:
-  * ``policy.onnx``   input 'obs', output 'actions', any batch size; the metadata in ``metadata_props``
+  * ``policy.onnx``   input 'obs' (and one per image group, e.g. 'camera': 0-255 pixels), output 'actions', any
+                      batch size; the metadata in ``metadata_props``
                       (one entry per top-level key, values JSON-encoded)
   * ``policy.pt``     TorchScript; the metadata as the extra file ``metadata.json``
   * ``policy.json``   the same metadata, for people and scripts
@@ -47,10 +48,12 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Pat
     out_dir.mkdir(parents=True, exist_ok=True)
     onnx_path, jit_path = out_dir / "policy.onnx", out_dir / "policy.pt"
     model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
+    # An image policy (learning/models.py) has one more input per image group, named after it ("camera").
+    inputs = list(getattr(model, "input_names", ["obs"]))
     with torch.no_grad():
         torch.onnx.export(
-            model, model.get_dummy_inputs(), str(onnx_path), input_names=["obs"], output_names=["actions"],
-            dynamic_axes={"obs": {0: "batch"}, "actions": {0: "batch"}}, opset_version=18, dynamo=False,
+            model, model.get_dummy_inputs(), str(onnx_path), input_names=inputs, output_names=["actions"],
+            dynamic_axes={name: {0: "batch"} for name in [*inputs, "actions"]}, opset_version=18, dynamo=False,
         )
     runner.export_policy_to_jit(str(out_dir), filename=jit_path.name)
     if task is not None:

@@ -228,7 +228,10 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
     from isaacgymenvs_mw.sim.video import VideoRecorder  # deferred: only recording runs need a GL context
 
     every, length = int(cfg.get("capture_video_freq", 1464)), int(cfg.get("capture_video_len", 100))
-    task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length)
+    # A task that observes camera images: what the policy sees (env 0's latest frame) beside the view.
+    beside = None if getattr(task, "images", None) is None else (lambda: task.images.image(0).cpu().numpy())
+    task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
+                                        beside=beside)
     print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)
 
 
@@ -276,7 +279,9 @@ def load_checkpoint(runner: Runner, checkpoint: Path, task, state: dict | None =
     if weights:
         ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
         num_obs = task.observation_space.shape[0]  # with env.history: the stacked size the policy sees
-        if ckpt_obs != num_obs or ckpt_act != task.num_actions:
+        # An image model's first MLP layer also reads its CNNs' features: only the actions can be compared here.
+        images = any(k.startswith("cnns.") for k in actor)
+        if (ckpt_obs != num_obs and not images) or ckpt_act != task.num_actions:
             raise ConfigError(
                 f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
                 f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"

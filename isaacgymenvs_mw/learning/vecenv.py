@@ -65,7 +65,8 @@ class EpisodeStats:
 
 
 class RslRlVecEnv(VecEnv):
-    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs) and 'critic' (states; obs if numStates is 0)."""
+    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs), 'critic' (states; obs if numStates is 0) and,
+    for a task with image terms, 'camera' ((num_envs, C, H, W) uint8; ``learning/models.py`` scales it)."""
 
     def __init__(self, task: VecTask) -> None:
         self.task = task
@@ -88,6 +89,8 @@ class RslRlVecEnv(VecEnv):
     def _to_tensordict(self, obs_dict: dict[str, torch.Tensor]) -> TensorDict:
         # "critic" always exists, so one train YAML serves with and without privileged states (numStates 0).
         groups = {"policy": obs_dict["obs"], "critic": obs_dict.get("states", obs_dict["obs"])}
+        if "camera" in obs_dict:
+            groups["camera"] = obs_dict["camera"]
         return TensorDict(groups, batch_size=[self.num_envs], device=self.device)
 
     def get_observations(self) -> TensorDict:

@@ -273,8 +273,8 @@ def check_image_memory(specs: Sequence[CameraSpec], num_worlds: int, wp_device: 
         if need > budget:
             raise ConfigError(
                 f"{cam.key}.width={cam.width}, {cam.key}.height={cam.height}: the images of {num_worlds} worlds "
-                f"would take {need / 2**30:.1f} GiB, more than {MEMORY_SHARE:.0%} of the {free / 2**30:.1f} GiB free "
-                f"on {wp_device.alias}; lower the resolution or numEnvs"
+                f"would take {need / 2**30:.1f} GiB, more than {MEMORY_SHARE:.0%} of the memory free on "
+                f"{wp_device.alias}; lower the resolution or numEnvs"
             )
 
 

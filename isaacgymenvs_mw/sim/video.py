@@ -18,6 +18,7 @@ import subprocess
 import sys
 import weakref
 from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -98,6 +99,8 @@ class VideoRecorder:
         every: a clip starts at env steps 1, 1 + every, 1 + 2 * every, ... (IsaacGymEnvs' capture_video_freq).
         length: frames (env steps) per clip (IsaacGymEnvs' capture_video_len).
         world: which world to film.
+        beside: returns an (h, w, 3) uint8 picture to show to the right of each frame (what the policy sees: a
+            task's camera images); it is scaled up by a whole factor to fit the frame's height. None: the view alone.
     """
 
     def __init__(
@@ -111,6 +114,7 @@ class VideoRecorder:
         every: int = 1464,
         length: int = 100,
         world: int = 0,
+        beside: Callable[[], np.ndarray] | None = None,
     ) -> None:
         if int(every) < 1 or int(length) < 1:
             raise ConfigError(f"capture_video_freq and capture_video_len must be >= 1, got {every} and {length}")
@@ -127,6 +131,9 @@ class VideoRecorder:
         self.every, self.length = int(every), int(length)
         self.world = int(world)
         self.written: list[Path] = []
+        self.beside = beside
+        # The frame written: the view, then the picture beside it (its width fixed now, from its shape).
+        self.frame_width = self.width + (self._beside_frame().shape[1] if beside is not None else 0)
 
         # A private copy: the offscreen buffer size is a model field, and the sim's host model stays untouched.
         self.model = copy.copy(sim.mj_model)
@@ -274,6 +281,17 @@ class VideoRecorder:
         self._add_floor_grid()
         return self.renderer.render()
 
+    def _beside_frame(self) -> np.ndarray:
+        """``beside()``'s picture scaled up by the largest whole factor that fits the frame's height (pixels stay
+        sharp), centred vertically on black, an even number of columns wide (H.264 in yuv420p needs it)."""
+        picture = np.asarray(self.beside(), dtype=np.uint8)
+        scale = max(1, self.height // picture.shape[0])
+        picture = np.repeat(np.repeat(picture, scale, axis=0), scale, axis=1)[:self.height]
+        out = np.zeros((self.height, picture.shape[1] + picture.shape[1] % 2, 3), dtype=np.uint8)
+        top = (self.height - picture.shape[0]) // 2
+        out[top:top + picture.shape[0], :picture.shape[1]] = picture
+        return out
+
     # --------------------------------------------------------------- recording
     @property
     def recording(self) -> bool:
@@ -283,7 +301,10 @@ class VideoRecorder:
         """Call once per env step with the number of env steps done so far (1 after the first step)."""
         if self._writer is None and (step - 1) % self.every != 0:
             return  # between clips: no device access at all
-        frame = np.ascontiguousarray(self.render())
+        frame = self.render()
+        if self.beside is not None:
+            frame = np.concatenate([frame, self._beside_frame()], axis=1)
+        frame = np.ascontiguousarray(frame)
         if self._writer is None:
             self._open(step)
         self._writer.send(frame)
@@ -299,7 +320,7 @@ class VideoRecorder:
         # Written under a temporary name and renamed when complete, so video_*.mp4 files are always whole.
         self._clip_part = self.out_dir / f"video_{self._clip_start}.mp4.part"
         self._writer = imageio_ffmpeg.write_frames(
-            str(self._clip_part), (self.width, self.height), fps=self.fps, codec="libx264", quality=7,
+            str(self._clip_part), (self.frame_width, self.height), fps=self.fps, codec="libx264", quality=7,
             macro_block_size=1, pix_fmt_in="rgb24", pix_fmt_out="yuv420p", output_params=["-f", "mp4"],
             ffmpeg_log_level="error",
         )

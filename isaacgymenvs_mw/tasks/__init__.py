@@ -15,6 +15,7 @@ from isaacgymenvs_mw.tasks.ant import Ant
 from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
+from isaacgymenvs_mw.tasks.cartpole_camera import CartpoleCamera
 from isaacgymenvs_mw.tasks.franka_cabinet import FrankaCabinet
 from isaacgymenvs_mw.tasks.franka_cube_stack import FrankaCubeStack
 from isaacgymenvs_mw.tasks.g1 import G1
@@ -27,6 +28,8 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "Anymal": Anymal,
     "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain
     "Cartpole": Cartpole,
+    "CartpoleCamera": CartpoleCamera,
+    "CartpoleCameraDepth": CartpoleCamera,  # same class; cfg/task/CartpoleCameraDepth.yaml observes depth
     "FrankaCabinet": FrankaCabinet,
     "FrankaCubeStack": FrankaCubeStack,
     "G1": G1,

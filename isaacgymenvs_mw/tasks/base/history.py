@@ -6,6 +6,7 @@ Configured per task under ``env.history`` (docs/config.md):
       history:
         policy: {length: 3, terms: [dof_pos, dof_vel, actions]}   # terms: omitted = the whole vector
         critic: {length: 2}
+        camera: {length: 3}                                     # image frames (the "camera" group)
 
 The task still computes one frame (``numObservations`` / ``numStates`` columns, the YAML sizes). What the learner
 sees is that frame followed by the selected columns of the ``length - 1`` frames before it, newest first:
@@ -16,6 +17,10 @@ so its size is ``n + (length - 1) * len(sel)``, and the first ``n`` columns are 
 history. An env whose ``reset_buf`` is set returned the first frame of a new episode: all its past frames are
 filled with that frame (nothing from the previous episode leaks in). The frames live on the device in a shift
 buffer, updated with whole-tensor ops only (no host syncs, capturable, compilable).
+
+Images (the ``camera`` group, (C, H, W) uint8 frames) are stacked the same way, each frame flattened: the stacked
+input is (C + (length - 1) * C_sel, H, W), the current frame's channels first, then the selected terms' channels of
+each past frame, newest first.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from isaacgymenvs_mw.tasks.base.observations import ObsLayout
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-GROUPS = ("policy", "critic")
+GROUPS = ("policy", "critic", "camera")
 
 
 @dataclass(frozen=True)
@@ -80,10 +85,11 @@ class ObsHistory:
         size: columns of one frame (``numObservations`` or ``numStates``).
         layout: the frame's named terms; required when ``spec.terms`` selects some.
         num_envs, device: batch and device of the buffers.
+        dtype: the frames' dtype (uint8 for images).
     """
 
     def __init__(self, spec: HistorySpec, size: int, layout: ObsLayout | None, num_envs: int,
-                 device: torch.device | str) -> None:
+                 device: torch.device | str, dtype: torch.dtype = torch.float32) -> None:
         self.spec = spec
         self.length = spec.length
         self.frame_size = int(size)
@@ -99,8 +105,8 @@ class ObsHistory:
         self.selected = int(self.columns.numel())
         self.size = self.frame_size + (self.length - 1) * self.selected
         # frames[:, 0] is the newest frame's selection, frames[:, k] the one k steps before.
-        self.frames = torch.zeros(num_envs, self.length, self.selected, device=device)
-        self.out = torch.zeros(num_envs, self.size, device=device)
+        self.frames = torch.zeros(num_envs, self.length, self.selected, device=device, dtype=dtype)
+        self.out = torch.zeros(num_envs, self.size, device=device, dtype=dtype)
 
     def describe(self) -> dict:
         """What an exported policy needs to rebuild the stacked input on a robot."""

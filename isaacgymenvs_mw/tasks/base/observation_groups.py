@@ -1,6 +1,7 @@
 """The observation groups of a VecTask: the policy observation and the critic state, built from the terms a task
 declares (``observation_terms()`` / ``state_terms()``), with their sizes, buffers, spaces, history and the
-metadata an exported policy carries. VecTask inherits it; a task only declares terms."""
+metadata an exported policy carries; and the image observation (``image_terms()``: camera images, the "camera"
+group, (num_envs, C, H, W) uint8). VecTask inherits it; a task only declares terms."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 import torch
 
 from isaacgymenvs_mw.tasks.base.history import ObsHistory
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ImageTerm, ObsLayout, ObsTerm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 
@@ -28,6 +29,12 @@ class ObservationGroups:
     def state_terms(self) -> list[ObsTerm] | None:
         """The privileged critic state as named terms; ``numStates`` is their total (``numStates: 0`` in the YAML
         turns the critic state off). None: no critic state, or one the task fills itself (``numStates`` > 0)."""
+        return None
+
+    def image_terms(self) -> list[ImageTerm] | None:
+        """The image observation as named camera images (``ImageTerm(name, camera, output)``), stacked along
+        channels into the "camera" group, (num_envs, C, H, W) uint8; the cameras are ``env.cameras`` entries and are
+        rendered after each step's resets (every ``env.renderInterval`` steps). None: no image observation."""
         return None
 
     def build_observation_layouts(self) -> None:
@@ -52,6 +59,14 @@ class ObservationGroups:
         if "critic" in self.history_specs and self.num_states == 0:
             raise ConfigError("env.history.critic needs env.numStates > 0; with numStates 0 the critic sees the "
                              "policy observation, history included (env.history.policy)")
+        terms = self.image_terms()
+        if terms and self.images is None:
+            self.images = ImageGroup(terms, self.sim, self.num_envs, self.device)
+            # Each step then renders after the resets and reads the images (VecTask.step).
+            self.execution.sensors = (self._render_cameras, self._observe_step_images)
+        if "camera" in self.history_specs and self.images is None:
+            raise ConfigError("env.history.camera needs image observation terms; this task declares none "
+                              "(image_terms())")
         if self.obs_buf.shape[1] != self.num_observations or self.states_buf.shape[1] != self.num_states:
             self._resize_observation_buffers()
         self._layouts_built = True
@@ -78,6 +93,31 @@ class ObservationGroups:
         if spec is not None and self.state_history is None:
             self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
             self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
+        spec = self.history_specs.get("camera")
+        if spec is not None and self.image_history is None:
+            size = self.images.layout.size
+            self.image_history = ObsHistory(spec, size, self.images.layout, n, dev, dtype=torch.uint8)
+
+    @property
+    def image_shape(self) -> tuple[int, int, int] | None:
+        """(C, H, W) of the "camera" group as the learner sees it (frames stacked); None without image terms."""
+        if self.images is None:
+            return None
+        channels, height, width = self.images.shape
+        if self.image_history is not None:
+            channels = self.image_history.size // (height * width)
+        return channels, height, width
+
+    def observe_images(self, new_episode: torch.Tensor, reset: bool = False) -> torch.Tensor:
+        """The "camera" group from the cameras' current images: this frame, and with ``env.history.camera`` the
+        past frames (``new_episode`` envs start afresh; ``reset``: fill their past without a shift). Device work
+        only; the returned buffer is rewritten by the next call."""
+        frame = self.images.compute()
+        if self.image_history is None:
+            return frame
+        flat = frame.view(self.num_envs, -1)
+        stacked = self.image_history.reset(flat, new_episode) if reset else self.image_history.push(flat, new_episode)
+        return stacked.view(self.num_envs, *self.image_shape)
 
     def compute_observations(self) -> None:
         """Fill ``obs_buf`` (and ``states_buf``) from the layouts, in term order: each term's ``compute()`` times its
@@ -124,6 +164,11 @@ class ObservationGroups:
         }
         if self.num_states > 0:
             info["state"] = group(self.state_layout, self.num_states, self.state_history)
+        if self.images is not None:
+            info["camera"] = {"shape": list(self.image_shape), "frame_shape": list(self.images.shape),
+                              "dtype": "uint8", "terms": self.images.describe(),
+                              "history": {k: v for k, v in self.image_history.describe().items() if k != "columns"}
+                              if self.image_history is not None else {"length": 1}}  # columns: every pixel
         return info
 
     def get_state(self) -> torch.Tensor:
@@ -143,6 +188,9 @@ class ObservationGroups:
             if self.state_history is not None:
                 states = self.state_history.reset(states, new_episode)
             self.obs_dict["states"] = states.to(self.rl_device, copy=True)
+        if self.images is not None:
+            self.sim.render_cameras()
+            self.obs_dict["camera"] = self.observe_images(new_episode, reset=True).to(self.rl_device, copy=True)
         return self.obs_dict
 
     def _compute_checked_observations(self) -> None:

@@ -81,3 +81,97 @@ class ObsLayout:
         """The layout as plain data (name, size, scale, noise, first column), for logs and exported policies."""
         described = [f.name for f in fields(ObsTerm) if f.name != "compute"]
         return [{**{k: getattr(t, k) for k in described}, "start": self.slices[t.name].start} for t in self.terms]
+
+
+IMAGE_OUTPUTS = {"rgb": 3, "depth": 1}  # camera outputs an image term may observe, and their channels
+
+
+@dataclass(frozen=True)
+class ImageTerm:
+    """One camera image in the image observation (the "camera" group), as uint8 channels in [0, 255].
+
+    Args:
+        name: unique within the image terms.
+        camera: the ``env.cameras`` entry it reads.
+        output: "rgb" (3 channels, R, G, B as rendered) or "depth" (1 channel: ``round(255 * depth / depthFar)``,
+            so 0 is at the camera and 255 at ``depthFar`` or beyond, nothing hit included).
+    """
+
+    name: str
+    camera: str
+    output: str = "rgb"
+
+    @property
+    def channels(self) -> int:
+        return IMAGE_OUTPUTS[self.output]
+
+
+class ImageGroup:
+    """The image observation: the terms' images stacked along channels, (num_envs, C, H, W) uint8 on the device.
+
+    uint8 keeps rollout storage at one byte per pixel and channel; the policy's model scales it to [0, 1]
+    (``learning/models.py``). Every term must come from a camera of the same width and height.
+    """
+
+    def __init__(self, terms: Sequence[ImageTerm], sim, num_envs: int, device: torch.device | str) -> None:
+        names = [t.name for t in terms]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ConfigError(f"image observation terms {duplicates} appear more than once; names must be unique")
+        cameras = sim.cameras.views if sim.cameras is not None else {}
+        self.sources = []
+        for t in terms:
+            if t.output not in IMAGE_OUTPUTS:
+                raise ConfigError(f"image observation term '{t.name}': output '{t.output}' is not one of "
+                                  f"{list(IMAGE_OUTPUTS)}")
+            if t.camera not in cameras:
+                raise ConfigError(f"image observation term '{t.name}' reads camera '{t.camera}', which env.cameras "
+                                  f"does not declare (cameras: {list(cameras)}); declare env.cameras.{t.camera}")
+            view = cameras[t.camera]
+            if t.output not in view.outputs:
+                raise ConfigError(f"image observation term '{t.name}' reads the {t.output} image of camera "
+                                  f"'{t.camera}', but env.cameras.{t.camera}.outputs={list(view.outputs)} does not "
+                                  f"render it; add {t.output} to env.cameras.{t.camera}.outputs")
+            self.sources.append(view)
+        sizes = {(v.height, v.width) for v in self.sources}
+        if len(sizes) != 1:
+            listing = {t.camera: f"{v.width}x{v.height}" for t, v in zip(terms, self.sources)}
+            raise ConfigError(f"image observation terms read cameras of different sizes {listing}; give their "
+                              "env.cameras entries one width and height")
+        (height, width), = sizes
+        self.terms = tuple(terms)
+        self.shape = (sum(t.channels for t in terms), height, width)
+        # The flat view of a frame, term by term: what env.history.camera stacks (its terms select blocks).
+        self.layout = ObsLayout([ObsTerm(t.name, t.channels * height * width) for t in terms])
+        self.buf = torch.zeros((num_envs, *self.shape), dtype=torch.uint8, device=device)
+
+    def compute(self) -> torch.Tensor:
+        """Fill ``buf`` from the cameras' current images (device work only); returns it."""
+        start = 0
+        for term, view in zip(self.terms, self.sources):
+            part = self.buf[:, start:start + term.channels]
+            if term.output == "rgb":
+                part.copy_(view.rgb)
+            else:
+                part.copy_(torch.round(view.depth * (255.0 / view.depth_far)).clamp_(0.0, 255.0))
+            start += term.channels
+        return self.buf
+
+    def image(self, world: int = 0) -> "torch.Tensor":
+        """World ``world``'s current frame as one (H, W * terms, 3) uint8 RGB picture, terms side by side (depth
+        as grey), for people: videos of what the policy sees."""
+        tiles, start = [], 0
+        for term in self.terms:
+            part = self.buf[world, start:start + term.channels]
+            tiles.append(part.expand(3, -1, -1) if term.channels == 1 else part)
+            start += term.channels
+        return torch.cat(tiles, dim=2).permute(1, 2, 0)
+
+    def describe(self) -> list[dict]:
+        """The terms as plain data (name, camera, output, channels, first channel), for exported policies."""
+        out, start = [], 0
+        for term, view in zip(self.terms, self.sources):
+            out.append({"name": term.name, "camera": term.camera, "output": term.output, "channels": term.channels,
+                        "start_channel": start, **({"depth_far": view.depth_far} if term.output == "depth" else {})})
+            start += term.channels
+        return out

@@ -7,6 +7,9 @@ were what a step cost beyond the physics. So, on CUDA:
   * after a few eager warm-up steps, the pre- and post-physics work are captured as two CUDA graphs
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
 Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
+A task with cameras adds two phases after those (``sensors``): the render (Warp: its own graph, replayed by the
+simulator) and the image observation (torch: a third captured graph), so that images show the state after the
+resets.
 """
 
 from __future__ import annotations
@@ -36,7 +39,9 @@ class StepExecution:
         self.compiled = _compile_wanted(sim_cfg.get("compileStep", "auto"), self.graphs_wanted)
         self.after = after if not self.compiled else self._compile_on_first_call(after)
         self.graph_actions = torch.zeros(action_shape, device=device)  # a captured graph reads its input here
-        self.graphs: tuple[torch.cuda.CUDAGraph, torch.cuda.CUDAGraph] | None = None
+        self.graphs: tuple[torch.cuda.CUDAGraph, ...] | None = None
+        # (render, observe) when the task observes camera images: run after ``after`` (VecTask sets it).
+        self.sensors: tuple[Callable[[], None], Callable[[], None]] | None = None
         self.device = device
         self.steps = 0
 
@@ -51,14 +56,20 @@ class StepExecution:
             self.graph_actions.copy_(actions)
             if self.graphs is None:
                 self._capture()
-            before, after = self.graphs
+            before, after = self.graphs[:2]
             before.replay()
             self.physics()
             after.replay()
+            if self.sensors is not None:
+                self.sensors[0]()
+                self.graphs[2].replay()
         else:
             self.before(actions)
             self.physics()
             self.after()
+            if self.sensors is not None:
+                self.sensors[0]()
+                self.sensors[1]()
         self.steps += 1
 
     def _compile_on_first_call(self, after: Callable[[], None]) -> Callable[[], None]:
@@ -84,13 +95,17 @@ class StepExecution:
                 self.before(self.graph_actions)
             with torch.cuda.graph(after, pool=before.pool()):
                 self.after()
+            if self.sensors is not None:
+                observe = torch.cuda.CUDAGraph()
+                with torch.cuda.graph(observe, pool=before.pool()):
+                    self.sensors[1]()
         except Exception as err:
             raise RuntimeError(
                 f"sim.captureStep: {self.name}'s step could not be captured as CUDA graphs ({err}). A task whose "
                 "post_physics_step syncs with the host or launches Warp kernels cannot be captured: run with "
                 "+task.sim.captureStep=False"
             ) from err
-        self.graphs = (before, after)
+        self.graphs = (before, after) if self.sensors is None else (before, after, observe)
 
 
 def _compile_wanted(value, graphs_wanted: bool) -> bool:
