@@ -40,14 +40,15 @@ def _rate(fn, reps: int, num_envs: int, device: str) -> float:
     return num_envs * reps / (time.perf_counter() - t0)
 
 
-def _physics_rate(task, advance, steps: int, chunk: int = 5, between: int = 3) -> float:
+def _physics_rate(task, advance, steps: int, chunk: int = 5, between: int = 3, work=None) -> float:
     """(a), in the states that (b) visits: runs of ``chunk`` bare physics env steps, each from a state the task
     has just reached (``between`` task steps on), after which that state is put back.
 
     Stepping the physics alone for hundreds of steps from wherever (b) stopped would time another workload:
     with the controls frozen, Cartpole's carts run into the rail's limits and legged robots settle or fall,
     and the solver's cost follows the contacts and constraints. On CUDA each run is timed on the GPU between two
-    events, so the untimed task steps and state copies around it neither count nor leave the GPU idle.
+    events, so the untimed task steps and state copies around it neither count nor leave the GPU idle. ``work``:
+    what one timed env step runs instead of ``sim.simulate`` (benchmarks/render_throughput.py adds the render).
     """
     sim, cuda = task.sim, task.sim.device.type == "cuda"
     runs = max(1, steps // chunk)
@@ -62,7 +63,7 @@ def _physics_rate(task, advance, steps: int, chunk: int = 5, between: int = 3) -
         else:
             t0 = time.perf_counter()
         for _ in range(chunk):
-            sim.simulate()
+            (work or sim.simulate)()
         if cuda:
             end.record()
             events.append((start, end))
