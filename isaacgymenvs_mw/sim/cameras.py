@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -133,7 +133,7 @@ def look_at_quat(pos: Sequence[float], target: Sequence[float], key: str = "look
     return tuple(float(v) for v in quat)
 
 
-def add_cameras(spec: mujoco.MjSpec, cameras: Sequence[CameraSpec], body_index) -> None:
+def add_cameras(spec: mujoco.MjSpec, cameras: Sequence[CameraSpec], body_index: Callable[[str, str], str]) -> None:
     """Add each camera to the model being built, on its body (``body_index(pattern, key)`` resolves the pattern to
     one body name; the builder's name rule) or the world body."""
     for cam in cameras:

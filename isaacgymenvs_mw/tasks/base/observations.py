@@ -157,7 +157,7 @@ class ImageGroup:
             start += term.channels
         return self.buf
 
-    def image(self, world: int = 0) -> "torch.Tensor":
+    def image(self, world: int = 0) -> torch.Tensor:
         """World ``world``'s current frame as one (H, W * terms, 3) uint8 RGB picture, terms side by side (depth
         as grey), for people: videos of what the policy sees."""
         tiles, start = [], 0
