@@ -16,8 +16,8 @@ import torch
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks.build import build_task
-from isaacgymenvs_mw.tasks.franka_cube_stack import (compute_cube_stack_reward, osc_torques, cube_stack_terms, quat_from_matrix,
-                                                     sample_cubes)
+from isaacgymenvs_mw.tasks.franka_cube_stack import (compute_cube_stack_reward, cube_stack_terms, grasp_terms, osc_torques,
+                                                     quat_from_matrix, sample_cubes)
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -300,3 +300,19 @@ def test_osc_moves_the_grasp_point_along_the_commanded_axis():
     # spin, as IGE's), so going down the hand tilts and the grasp point, 10 cm from the wrist, drifts along x.
     assert moved[0, 0] > 0.03 and abs(moved[0, 1]) < 0.3 * moved[0, 0] and abs(moved[0, 2]) < 0.3 * moved[0, 0]
     assert moved[1, 2] < -0.03 and abs(moved[1, 0]) < 0.7 * -moved[1, 2] and abs(moved[1, 1]) < 0.3 * -moved[1, 2]
+
+
+def test_grasp_shaping_terms_equal_their_formula():
+    rng = np.random.default_rng(11)
+    n = 300
+    cube = np.column_stack([rng.uniform(0.2, 0.7, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-0.08, 0.05, n)])
+    grasp = cube + rng.normal(scale=0.02, size=(n, 3))
+    opening = rng.uniform(0.0, 0.04, n)
+    held = (np.linalg.norm(cube - grasp, axis=1) < 0.03) & (opening < 0.03)
+    # A rests with its centre 0.025 m above the table top (-0.1 m); "lifted" is 0.09 m: a 0.065 m rise
+    rise = np.clip((cube[:, 2] - (-0.1) - 0.025) / 0.065, 0.0, 1.0)
+    t = lambda x: torch.as_tensor(x, dtype=torch.float32)  # noqa: E731
+    got = grasp_terms(t(cube), t(grasp), t(opening))
+    np.testing.assert_array_equal(got["held"].numpy(), held.astype(np.float32))
+    np.testing.assert_allclose(got["lift_height"].numpy(), held * rise, atol=1e-6)
+    assert 0 < held.sum() < n and ((rise > 0) & (rise < 1) & held).any()  # both cases and a partial rise occur

@@ -42,6 +42,8 @@ TORQUE_CONTROL = ("joint_tor", "osc")  # the arm's actuators are torque motors
 # env keys of the task YAML that are plain numbers
 _NUMBER_KEYS = ("actionScale", "frankaDofNoise", "startPositionNoise", "startRotationNoise")
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
+# Shaping of this project (IGE has neither; 0 gives IGE's reward): holding A, and A's height on the way to "lifted".
+SHAPING_SCALE_KEYS = {"grasp": "graspRewardScale", "lift_height": "liftHeightRewardScale"}
 REWARD_SCALE_KEYS = {"dist": "distRewardScale", "lift": "liftRewardScale", "align": "alignRewardScale",
                      "stack": "stackRewardScale"}
 
@@ -86,7 +88,9 @@ class FrankaCubeStack(VecTask):
         self.torque_limit = torch.tensor(m.actuator_forcerange[:7, 1], dtype=torch.float32, device=self.device)
         self.arm_step = self.k["actionScale"] * self.control_dt  # rad per step at action 1 (joint_pos)
         self.table_centre = torch.tensor([*TABLE_CENTRE_XY], device=self.device)
-        self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
+        scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
+        scales.update({t: float(env.get(k, 0.0)) for t, k in SHAPING_SCALE_KEYS.items()})
+        self.rewards = RewardTerms(self, scales, self.num_envs,
                                    self.device, key="env")
         self.terms: dict[str, torch.Tensor] = {}
         if self.control_type == "osc":
@@ -127,6 +131,7 @@ class FrankaCubeStack(VecTask):
         left, right = self.arm.finger_pos()
         self.terms = cube_stack_terms(self.cube_a.root_pos, self.cube_b.root_pos, grasp,
                                       left + FINGERTIP * approach, right + FINGERTIP * approach)
+        self.terms.update(grasp_terms(self.cube_a.root_pos, grasp, self.sim.dof_pos[:, 7]))
 
     def check_success(self) -> torch.Tensor:
         # A on B, released (IGE's end condition): the episode ends, bootstrapped (see VecTask.check_success)
@@ -147,6 +152,14 @@ class FrankaCubeStack(VecTask):
     def _reward_align(self) -> torch.Tensor:
         # while lifted: 1 - tanh(10 x distance of A from its place on top of B)
         return self.terms["align"] * ~self.terms["stacked"]
+
+    def _reward_grasp(self) -> torch.Tensor:
+        # shaping: A between the finger pads with the gripper closed on it
+        return self.terms["held"] * ~self.terms["stacked"]
+
+    def _reward_lift_height(self) -> torch.Tensor:
+        # shaping: while held, A's rise from the table toward the "lifted" height, 0 ... 1
+        return self.terms["lift_height"] * ~self.terms["stacked"]
 
     def _reward_stack(self) -> torch.Tensor:
         # A on B, the gripper released
@@ -261,6 +274,16 @@ def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Te
     on_top = torch.abs(height_a - CUBE_B_SIZE - CUBE_A_SIZE / 2.0) < 0.02
     released = d > 0.04
     return {"dist": dist, "lifted": lifted, "align": align, "stacked": aligned_xy & on_top & released}
+
+
+def grasp_terms(cube_a: torch.Tensor, grasp: torch.Tensor, finger_opening: torch.Tensor,
+                table_top: float = TABLE_TOP) -> dict[str, torch.Tensor]:
+    """This project's shaping quantities: ``held`` (float 0/1: A's centre within 3 cm of the grasp point and each
+    finger opened less than 3 cm, i.e. closed on A's 2.5 cm half-width) and ``lift_height`` (while held, A's centre
+    above its resting height as a fraction of the 6.5 cm rise that makes it ``lifted``, clamped to 0 ... 1)."""
+    held = ((torch.linalg.norm(cube_a - grasp, dim=-1) < 0.03) & (finger_opening < 0.03)).float()
+    rise = (cube_a[:, 2] - table_top - CUBE_A_SIZE / 2.0) / (CUBE_A_SIZE + 0.04 - CUBE_A_SIZE / 2.0)
+    return {"held": held, "lift_height": held * torch.clamp(rise, 0.0, 1.0)}
 
 
 def compute_cube_stack_reward(terms: dict[str, torch.Tensor], dist_scale: float = 0.1, lift_scale: float = 1.5,
