@@ -316,3 +316,4 @@ def test_grasp_shaping_terms_equal_their_formula():
     np.testing.assert_array_equal(got["held"].numpy(), held.astype(np.float32))
     np.testing.assert_allclose(got["lift_height"].numpy(), held * rise, atol=1e-6)
     assert 0 < held.sum() < n and ((rise > 0) & (rise < 1) & held).any()  # both cases and a partial rise occur
+

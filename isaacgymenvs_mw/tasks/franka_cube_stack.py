@@ -120,6 +120,9 @@ class FrankaCubeStack(VecTask):
             torques = osc_torques(actions[:, :6] * self.osc_command_limit, q, qd, self.start_dof_pos[:7],
                                   self.dynamics.mass_matrix(), self.dynamics.jacobian(), self.osc_kp,
                                   self.osc_kp_null)
+            # A singular pose can make the unchecked inverses NaN: that world gets no arm torque for this step (a
+            # NaN command would reach the learner through the next state; seen once in 1260 H200 iterations).
+            torques = torch.nan_to_num(torques, nan=0.0)
             self.sim.ctrl[:, :7] = torch.clamp(torques, -self.torque_limit, self.torque_limit)
             self.sim.ctrl[:, 7] = grip
 
