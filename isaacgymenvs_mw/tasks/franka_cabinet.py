@@ -50,17 +50,7 @@ class FrankaCabinet(VecTask):
                          virtual_screen_capture, force_render)
         self.arm = FrankaArm(self.sim, "FrankaCabinet")
         self._init_drawer(env["drawer"])
-        start = torch.tensor(list(env["startDofPos"]), dtype=torch.float32, device=self.device)
-        if start.shape != (9,):
-            raise ConfigError(f"env.startDofPos={list(env['startDofPos'])} is invalid: give 9 joint positions "
-                              "(7 arm joints, 2 fingers)")
-        outside = ((start < self.arm.dof_lower) | (start > self.arm.dof_upper)).nonzero().flatten().tolist()
-        if outside:
-            i = outside[0]
-            raise ConfigError(f"env.startDofPos[{i}]={float(start[i]):.6g} is outside the range of joint "
-                              f"{self.sim.dof_names[i]} [{float(self.arm.dof_lower[i]):.6g}, "
-                              f"{float(self.arm.dof_upper[i]):.6g}] (a finger's opening is 0 ... 0.04 m)")
-        self.start_dof_pos = start
+        self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         # Per step, a target moves by at most actionScale x control dt (rad for the arm, m for the gripper).
         speed = torch.ones(self.arm.num_targets, device=self.device)
         speed[-1] = self.k["fingerSpeedScale"]

@@ -78,11 +78,7 @@ class FrankaCubeStack(VecTask):
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self.arm = FrankaArm(self.sim, "FrankaCubeStack")
-        start = torch.tensor(list(env["startDofPos"]), dtype=torch.float32, device=self.device)
-        if start.shape != (9,):
-            raise ConfigError(f"env.startDofPos={list(env['startDofPos'])} is invalid: give 9 joint positions "
-                              "(7 arm joints, 2 fingers)")
-        self.start_dof_pos = start
+        self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         self.cube_a, self.cube_b = self.sim.asset("cubeA"), self.sim.asset("cubeB")
         m = self.sim.mj_model
         self.torque_limit = torch.tensor(m.actuator_forcerange[:7, 1], dtype=torch.float32, device=self.device)

@@ -51,6 +51,23 @@ class FrankaArm:
         self.left_finger = sim.body_id("left_finger")
         self.right_finger = sim.body_id("right_finger")
 
+    def start_pose(self, values: object, key: str) -> torch.Tensor:
+        """The 9 joint positions ``values`` (7 arm joints, rad; 2 fingers, m) as a tensor, checked: 9 numbers, each
+        inside its joint's range (a finger's opening within 0 ... 0.04 m), else a one-line error naming ``key``."""
+        try:
+            start = torch.tensor([float(v) for v in values], dtype=torch.float32, device=self.sim.device)
+        except (TypeError, ValueError):
+            start = None
+        if start is None or start.shape != (9,):
+            raise ConfigError(f"{key}={values!r} is invalid: give 9 joint positions (7 arm joints, 2 fingers)")
+        outside = ((start < self.dof_lower) | (start > self.dof_upper)).nonzero().flatten().tolist()
+        if outside:
+            i = outside[0]
+            raise ConfigError(f"{key}[{i}]={float(start[i]):.6g} is outside the range of joint "
+                              f"{self.sim.dof_names[i]} [{float(self.dof_lower[i]):.6g}, "
+                              f"{float(self.dof_upper[i]):.6g}] (a finger's opening is 0 ... 0.04 m)")
+        return start
+
     # ------------------------------------------------------------------ commands
     def move_targets(self, delta: torch.Tensor) -> None:
         """Add ``delta`` (N, 8) to the servo targets, keep them in the servo ranges, and command them."""
