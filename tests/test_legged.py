@@ -759,3 +759,45 @@ def test_episodes_end_by_time_out_at_the_step_limit(robot):
             assert set(extras["episode_terms"]) == active
         assert torch.equal(task.progress_buf, torch.full((N,), progress)), f"step {k}"
     assert fired == [max_len - 1, 2 * (max_len - 1)]
+
+
+# ------------------------------------------------------------------------------------------ tilt termination
+def test_tilt_test_equals_the_angle_between_the_base_up_axis_and_the_world_up():
+    from isaacgymenvs_mw.tasks.base.legged_task import base_tilted
+
+    rng = np.random.default_rng(4)
+    axes = rng.normal(size=(500, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = rng.uniform(0.0, math.pi, 500)
+    gravity = []
+    for axis, angle in zip(axes, angles):  # world gravity (0, 0, -1) in a base rotated by `angle` about `axis`
+        q, r = np.zeros(4), np.zeros(9)
+        mujoco.mju_axisAngle2Quat(q, axis, angle)
+        mujoco.mju_quat2Mat(r, q)
+        gravity.append(r.reshape(3, 3).T @ np.array([0.0, 0.0, -1.0]))
+    # the tilt is the angle between the base's z axis and world z: |angle| only for rotations about a horizontal axis
+    tilt = np.array([np.arccos(np.clip(-g[2], -1.0, 1.0)) for g in gravity])
+    got = base_tilted(torch.as_tensor(np.array(gravity), dtype=torch.float32), math.cos(1.2)).numpy()
+    np.testing.assert_array_equal(got, tilt > 1.2)
+    assert 0 < got.sum() < 500
+
+
+def test_a_base_on_its_side_ends_the_episode_an_upright_one_does_not():
+    task = make_legged("Anymal", overrides=["+task.env.terminationTilt=1.5708", "task.env.resetRootVelocityRange=0.0"])
+    task.reset()
+    n = task.num_envs
+    # high above the ground (no contact can end it), turned about x by 100 deg in env 0 and 60 deg in the others
+    angle = torch.full((n,), math.radians(60.0))
+    angle[0] = math.radians(100.0)
+    quat = torch.stack((torch.cos(angle / 2), torch.sin(angle / 2), torch.zeros(n), torch.zeros(n)), dim=1)
+    pos = task.sim.root_pos.clone()
+    pos[:, 2] = 3.0
+    task.sim.write_state(all_envs(), root_pos=pos, root_quat=quat)
+    _, _, done, extras = task.step(torch.zeros(n, task.num_actions))
+    assert done.tolist() == [1] + [0] * (n - 1)
+    assert extras["time_outs"].tolist() == [0] * n  # a failure, not a time-out
+
+
+def test_a_tilt_limit_outside_its_range_is_refused():
+    with pytest.raises(Exception, match=r"env\.terminationTilt=4\.0 is invalid: give an angle in \(0, pi\]"):
+        make_legged("Anymal", overrides=["+task.env.terminationTilt=4.0"])

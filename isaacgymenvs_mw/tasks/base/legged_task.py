@@ -206,6 +206,7 @@ class LeggedTask(VecTask):
         self.feet_stance_time = torch.zeros(n, len(self.feet), device=dev)
         height = env.get("terminationHeight")  # absent (the quadrupeds): no height termination
         self.termination_height = None if height is None else float(height)
+        self.termination_tilt_cos = tilt_limit_cos(env.get("terminationTilt"))  # None: no tilt termination
         self.gravity_vec = torch.tensor([0.0, 0.0, -1.0], device=dev).repeat(n, 1)
         init = env["baseInitState"]
         self.base_init_pos = torch.tensor(init["pos"], device=dev, dtype=torch.float).repeat(n, 1)
@@ -348,6 +349,8 @@ class LeggedTask(VecTask):
         hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)
         if self.termination_height is not None:
             hit |= self._base_height() < self.termination_height
+        if self.termination_tilt_cos is not None:
+            hit |= base_tilted(self.projected_gravity, self.termination_tilt_cos)
         return hit
 
     @property
@@ -557,3 +560,23 @@ def _require_keys(cfg, key: str, names: tuple[str, ...]) -> None:
     """A YAML option given as a mapping must hold exactly ``names``: a missing or misspelt one is an error."""
     if not hasattr(cfg, "keys") or set(cfg.keys()) != set(names):
         raise ConfigError(f"{key} must be a mapping with exactly the keys {' and '.join(names)}, got {cfg!r}")
+
+
+def tilt_limit_cos(limit: object) -> float | None:
+    """``env.terminationTilt`` (rad, in (0, pi]) as the cosine a tilt test compares with; None when absent."""
+    if limit is None:
+        return None
+    try:
+        value = float(limit)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not 0.0 < value <= math.pi:
+        raise ConfigError(f"env.terminationTilt={limit!r} is invalid: give an angle in (0, pi] rad between the base's "
+                          "up axis and the world's up")
+    return math.cos(value)
+
+
+def base_tilted(projected_gravity: torch.Tensor, limit_cos: float) -> torch.Tensor:
+    """The envs whose base's up axis is more than the limit from the world's up: gravity in the base frame is
+    (0, 0, -1) upright, so the cosine of the tilt is -g_z."""
+    return -projected_gravity[:, 2] < limit_cos
