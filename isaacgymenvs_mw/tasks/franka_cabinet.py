@@ -93,22 +93,26 @@ class FrankaCabinet(VecTask):
     def drawer_pos(self) -> torch.Tensor:
         return self.cabinet.dof_pos[:, self.drawer_dof]
 
+    def refresh_state(self) -> None:
+        """The positions the reward terms share, read once per step: the handle, the fingers, and whether the
+        fingers are around the handle."""
+        self.handle_pos = self.sim.site_xpos[:, self.handle_site]
+        self.left_finger, self.right_finger = self.arm.finger_pos()
+        self.around = around_handle(self.left_finger[:, 2], self.right_finger[:, 2], self.handle_pos[:, 2])
+
     def check_success(self) -> torch.Tensor:
         # open past openDistance (IGE's end condition): the episode ends, bootstrapped (see VecTask.check_success)
         return self.drawer_pos() > self.k["openDistance"]
 
     def compute_reward(self) -> None:
         reward = self.rewards.compute(self.nonfinite_buf)
-        left, right = self.arm.finger_pos()
-        handle = self.sim.site_xpos[:, self.handle_site]
-        past = fingers_past_handle(left, right, handle, self.opening_axis)
+        past = fingers_past_handle(self.left_finger, self.right_finger, self.handle_pos, self.opening_axis)
         self.rew_buf[:] = torch.where(past, self.k["pastHandleReward"], reward) * self.k["rewardScale"]
 
     # Reward terms: each returns its per-step value; its YAML scale multiplies it (REWARD_SCALE_KEYS).
     def _reward_handle_distance(self) -> torch.Tensor:
         # closeness of the grasp point to the handle, doubled within 2 cm
-        return handle_distance_reward(torch.norm(self.arm.grasp_pos() - self.sim.site_xpos[:, self.handle_site],
-                                                 dim=-1))
+        return handle_distance_reward(torch.norm(self.arm.grasp_pos() - self.handle_pos, dim=-1))
 
     def _reward_alignment(self) -> torch.Tensor:
         # the gripper approaches along the drawer's inward axis with its fingers one above the other
@@ -117,28 +121,23 @@ class FrankaCabinet(VecTask):
 
     def _reward_around_handle(self) -> torch.Tensor:
         # the left finger above the handle and the right one below it
-        return self._around()
+        return self.around
 
     def _reward_finger_distance(self) -> torch.Tensor:
         # with the fingers around the handle: how close each is to the handle's height
-        left, right = self.arm.finger_pos()
-        return finger_distance_reward(left[:, 2], right[:, 2], self.sim.site_xpos[:, self.handle_site, 2])
+        return finger_distance_reward(self.left_finger[:, 2], self.right_finger[:, 2], self.handle_pos[:, 2])
 
     def _reward_open(self) -> torch.Tensor:
-        # how far the drawer is open, counted twice while the fingers are around the handle
-        return open_reward(self.drawer_pos(), self._around())
+        # how far the drawer is open, counted 1.5 times while the fingers are around the handle
+        return open_reward(self.drawer_pos(), self.around)
 
     def _reward_open_bonus(self) -> torch.Tensor:
         # IsaacGymEnvs' bonuses for passing 0.01 m, 0.2 m and 0.39 m of opening
-        return open_bonus(self.drawer_pos(), self._around())
+        return open_bonus(self.drawer_pos(), self.around)
 
     def _reward_action(self) -> torch.Tensor:
         # squared size of the action (a penalty: its scale is subtracted)
         return -torch.sum(self.actions ** 2, dim=-1)
-
-    def _around(self) -> torch.Tensor:
-        left, right = self.arm.finger_pos()
-        return around_handle(left[:, 2], right[:, 2], self.sim.site_xpos[:, self.handle_site, 2])
 
     def observation_terms(self) -> list[ObsTerm]:
         def to_handle() -> torch.Tensor:
@@ -213,5 +212,7 @@ def fingers_past_handle(left: torch.Tensor, right: torch.Tensor, handle: torch.T
                         opening_axis: torch.Tensor) -> torch.Tensor:
     """A finger more than 4 cm behind the handle, toward the cabinet along the drawer's opening axis (IsaacGymEnvs
     then overwrites the reward with -1)."""
-    behind = lambda p: torch.sum((p - handle) * opening_axis, dim=-1) < -0.04  # noqa: E731
+    def behind(finger: torch.Tensor) -> torch.Tensor:
+        return torch.sum((finger - handle) * opening_axis, dim=-1) < -0.04
+
     return behind(left) | behind(right)
