@@ -16,10 +16,16 @@ import torch
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks.build import build_task
-from isaacgymenvs_mw.tasks.franka_cube_stack import (compute_cube_stack_reward, cube_stack_terms, grasp_terms, osc_torques,
-                                                     quat_from_matrix, sample_cubes)
+from isaacgymenvs_mw.tasks.franka_cube_stack import (
+    compute_cube_stack_reward,
+    cube_stack_terms,
+    grasp_terms,
+    osc_torques,
+    sample_cubes,
+)
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.rotations import quat_from_matrix
 
 TABLE_TOP = -0.1  # assets/mjcf/table.xml: 0.1 m below the robot base
 Q0 = np.array([0.0, 0.1963, 0.0, -2.6180, 0.0, 2.9416, 0.7854, 0.035, 0.035])  # IGE's start pose
@@ -55,7 +61,7 @@ def test_reward_terms_equal_the_reference_formula_on_constructed_states():
     a[3 * n // 4:] = b[3 * n // 4:] + [0, 0, 0.06] + rng.uniform(-0.01, 0.01, (n // 4, 3))
     eef = a + rng.normal(0.0, 0.05, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))
     tip_l, tip_r = eef + rng.normal(0, 0.02, (n, 3)), eef + rng.normal(0, 0.02, (n, 3))
-    t = lambda x: torch.tensor(x, dtype=torch.float64)  # noqa: E731
+    t = lambda x: torch.tensor(x, dtype=torch.float64)
     terms = cube_stack_terms(t(a), t(b), t(eef), t(tip_l), t(tip_r))
     reward = compute_cube_stack_reward(terms)
     ref = [reference_reward(*v) for v in zip(a, b, eef, tip_l, tip_r)]
@@ -278,7 +284,7 @@ def test_osc_law_equals_the_formula_written_with_numpy():
         null = mass[i] @ (kp_null * wrapped - 2 * np.sqrt(kp_null) * qd[i])
         tau += (np.eye(k) - jac[i].T @ lam @ jac[i] @ m_inv) @ null
         expected.append(tau)
-    t = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+    t = lambda x: torch.as_tensor(x, dtype=torch.float64)
     got = osc_torques(t(err), t(q), t(qd), t(rest), t(mass), t(jac), kp, kp_null).numpy()
     np.testing.assert_allclose(got, np.array(expected), rtol=1e-9, atol=1e-9)
 
@@ -311,7 +317,7 @@ def test_grasp_shaping_terms_equal_their_formula():
     held = (np.linalg.norm(cube - grasp, axis=1) < 0.03) & (opening < 0.03)
     # A rests with its centre 0.025 m above the table top (-0.1 m); "lifted" is 0.09 m: a 0.065 m rise
     rise = np.clip((cube[:, 2] - (-0.1) - 0.025) / 0.065, 0.0, 1.0)
-    t = lambda x: torch.as_tensor(x, dtype=torch.float32)  # noqa: E731
+    t = lambda x: torch.as_tensor(x, dtype=torch.float32)
     got = grasp_terms(t(cube), t(grasp), t(opening))
     np.testing.assert_array_equal(got["held"].numpy(), held.astype(np.float32))
     np.testing.assert_allclose(got["lift_height"].numpy(), held * rise, atol=1e-6)

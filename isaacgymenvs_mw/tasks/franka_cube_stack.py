@@ -36,6 +36,7 @@ from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw, wrap_to_pi
 
 CONTROL_TYPES = ("joint_pos", "joint_tor", "osc")
 TORQUE_CONTROL = ("joint_tor", "osc")  # the arm's actuators are torque motors
@@ -193,11 +194,10 @@ class FrankaCubeStack(VecTask):
         noise = torch.zeros((n, 9), device=dev)
         noise[:, :7] = self.k["frankaDofNoise"] * (2.0 * torch.rand((n, 7), device=dev) - 1.0)  # fingers stay
         dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
-        torques = self.sim.ctrl[:, :7].clone()
         self.sim.reset_worlds(mask)
-        self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions (it writes every world's ctrl)
+        self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
         if self.control_type in TORQUE_CONTROL:  # the arm's ctrl columns are torques: none in a new episode
-            self.sim.ctrl[:, :7] = torch.where(mask.unsqueeze(1), 0.0, torques)
+            self.sim.ctrl[:, :7].masked_fill_(mask.unsqueeze(1), 0.0)
         pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.k["startPositionNoise"],
                                                     self.k["startRotationNoise"], dev)
         zero = torch.zeros_like(pos_a)
@@ -231,27 +231,7 @@ def sample_cubes(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float
     xy_a = xy_a[torch.arange(n, device=device), first]
     pos_a = torch.cat((xy_a, torch.full((n, 1), TABLE_TOP + CUBE_A_SIZE / 2, device=device)), dim=1)
     pos_b = torch.cat((xy_b, torch.full((n, 1), TABLE_TOP + CUBE_B_SIZE / 2, device=device)), dim=1)
-    return pos_a, pos_b, yaw_quat(yaw_noise * uniform(n)), yaw_quat(yaw_noise * uniform(n))
-
-
-def yaw_quat(yaw: torch.Tensor) -> torch.Tensor:
-    """(w, x, y, z) of a rotation by ``yaw`` about world z."""
-    zero = torch.zeros_like(yaw)
-    return torch.stack((torch.cos(0.5 * yaw), zero, zero, torch.sin(0.5 * yaw)), dim=-1)
-
-
-def quat_from_matrix(r: torch.Tensor) -> torch.Tensor:
-    """(N, 4) unit quaternions (w, x, y, z), w >= 0, of rotation matrices (N, 3, 3); stable for any angle."""
-    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
-    # |w|, |x|, |y|, |z| from the diagonal, the signs of x, y, z from the off-diagonal differences (w >= 0).
-    w = 0.5 * torch.sqrt(torch.clamp(1.0 + m00 + m11 + m22, min=0.0))
-    x = 0.5 * torch.sqrt(torch.clamp(1.0 + m00 - m11 - m22, min=0.0))
-    y = 0.5 * torch.sqrt(torch.clamp(1.0 - m00 + m11 - m22, min=0.0))
-    z = 0.5 * torch.sqrt(torch.clamp(1.0 - m00 - m11 + m22, min=0.0))
-    x = torch.copysign(x, r[:, 2, 1] - r[:, 1, 2])
-    y = torch.copysign(y, r[:, 0, 2] - r[:, 2, 0])
-    z = torch.copysign(z, r[:, 1, 0] - r[:, 0, 1])
-    return torch.stack((w, x, y, z), dim=-1)
+    return pos_a, pos_b, quat_from_yaw(yaw_noise * uniform(n)), quat_from_yaw(yaw_noise * uniform(n))
 
 
 def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Tensor,
@@ -309,8 +289,7 @@ def osc_torques(pose_error: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, q_r
     force = (kp * pose_error - kd * eef_vel).unsqueeze(-1)
     torque = jt @ (task_inertia @ force)
     # The pull toward the rest pose (wrapped to (-pi, pi]), in the null space of the task: it does not move the hand.
-    wrapped = torch.remainder(q_rest - q + math.pi, 2.0 * math.pi) - math.pi
-    rest = kp_null * wrapped - kd_null * qd
+    rest = kp_null * wrap_to_pi(q_rest - q) - kd_null * qd
     jbar_t = task_inertia @ jacobian @ mass_inv  # (N, 6, k)
     eye = torch.eye(q.shape[1], device=q.device, dtype=q.dtype).expand_as(mass)
     torque = torque + (eye - jt @ jbar_t) @ (mass @ rest.unsqueeze(-1))

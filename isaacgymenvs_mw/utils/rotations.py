@@ -46,3 +46,17 @@ def quat_axis(q: torch.Tensor, axis: int = 0) -> torch.Tensor:
     basis = torch.zeros(q.shape[0], 3, dtype=q.dtype, device=q.device)
     basis[:, axis] = 1.0
     return quat_rotate(q, basis)
+
+
+def quat_from_matrix(r: torch.Tensor) -> torch.Tensor:
+    """(N, 4) unit quaternions (w, x, y, z), w >= 0, of rotation matrices (N, 3, 3); stable for any angle."""
+    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
+    # |w|, |x|, |y|, |z| from the diagonal, the signs of x, y, z from the off-diagonal differences (w >= 0).
+    w = 0.5 * torch.sqrt(torch.clamp(1.0 + m00 + m11 + m22, min=0.0))
+    x = 0.5 * torch.sqrt(torch.clamp(1.0 + m00 - m11 - m22, min=0.0))
+    y = 0.5 * torch.sqrt(torch.clamp(1.0 - m00 + m11 - m22, min=0.0))
+    z = 0.5 * torch.sqrt(torch.clamp(1.0 - m00 - m11 + m22, min=0.0))
+    x = torch.copysign(x, r[:, 2, 1] - r[:, 1, 2])
+    y = torch.copysign(y, r[:, 0, 2] - r[:, 2, 0])
+    z = torch.copysign(z, r[:, 1, 0] - r[:, 0, 1])
+    return torch.stack((w, x, y, z), dim=-1)
