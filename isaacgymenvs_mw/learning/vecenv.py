@@ -10,7 +10,9 @@ from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
 # Task metrics (``extras["episode_metrics"]``: sums over the episodes that ended in a step) are logged as
 # Episode/<name> in TensorBoard and the history, shown on the progress line, and written to summary.json by name;
-# per-term reward sums (``extras["episode_terms"]``) as Episode_Reward/<name>.
+# per-term reward sums (``extras["episode_terms"]``) as Episode_Reward/<name>. Running metrics (``extras[
+# "running_metrics"]``: device scalars the task keeps itself, e.g. AllegroHand's consecutive_successes) are logged the
+# same way, at their value when the iteration's statistics are read.
 METRIC_GROUP = "Episode/"
 
 
@@ -23,6 +25,7 @@ class EpisodeStats:
         # [count, return sum, length sum, timeouts, worlds reset for NaN/inf state]
         self.totals = torch.zeros(5, device=device, dtype=torch.float64)
         self._terms: dict[tuple[str, ...], torch.Tensor] = {}  # names -> accumulated sums
+        self._running: dict[str, torch.Tensor] = {}  # name -> the task's running value (a device scalar)
 
     def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor,
                nonfinite: torch.Tensor) -> None:
@@ -47,9 +50,15 @@ class EpisodeStats:
         else:
             self._terms[names] = values  # a fresh tensor from torch.stack, owned here
 
+    def set_running(self, metrics: dict[str, torch.Tensor], group: str) -> None:
+        """Task-kept running values (device scalars), reported as ``<group>/<name>`` at their latest value."""
+        for key, value in metrics.items():
+            self._running[f"{group}/{key}"] = value
+
     def pop(self) -> dict[str, float]:
         count, ret, length, timeouts, nonfinite = self.totals.tolist()
         out = {"episodes": count, "nonfinite_resets": nonfinite}
+        out.update({key: float(value) for key, value in self._running.items()})
         if count > 0:
             out.update(
                 mean_episode_reward=ret / count,
@@ -106,6 +115,8 @@ class RslRlVecEnv(VecEnv):
             self.stats.add_terms(extras["episode_terms"])
         if "episode_metrics" in extras:  # the metrics the task declares, e.g. the terrain curriculum's level
             self.stats.add_terms(extras["episode_metrics"], group=METRIC_GROUP.rstrip("/"))
+        if "running_metrics" in extras:
+            self.stats.set_running(extras["running_metrics"], group=METRIC_GROUP.rstrip("/"))
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

@@ -117,7 +117,8 @@ class ModelRequest:
     armature: Mapping[str, float] = field(default_factory=dict)
     joint_damping: Mapping[str, float] = field(default_factory=dict)
     ground: GroundPlane | None = None
-    # Floating base start pose; None keeps the root body's own pos / quat (MuJoCo order w, x, y, z).
+    # Root pose: where a floating base starts or a fixed one is welded; None keeps the root body's own pos / quat
+    # (MuJoCo order w, x, y, z).
     base_init_pos: Sequence[float] | None = None
     base_init_quat: Sequence[float] | None = None
     contact_bodies: Sequence[str] = ()
@@ -252,9 +253,9 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
     spec = request.spec.copy() if request.spec is not None else load_spec(request.asset_file,
                                                                           request.collapse_fixed_joints)
     joints = movable_joint_names(spec)
-    free = not request.fix_base  # a fixed main base stays where its file puts it, whatever the request says
-    _place_root(spec, request.asset_file, request.fix_base, request.base_init_pos if free else None,
-                request.base_init_quat if free else None, "env.asset")
+    # A floating base starts at the pose (its qpos0); a fixed one is welded there (IsaacGymEnvs' hand pose).
+    _place_root(spec, request.asset_file, request.fix_base, request.base_init_pos, request.base_init_quat,
+                "env.asset")
 
     collide_bits = _set_collision_filter(spec, request.self_collisions, request.keep_asset_contacts)
     ground = []

@@ -60,7 +60,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
     plane = env.get("plane", {})
     ground = GroundPlane(float(plane.get("friction", 1.0))) if plane.get("enabled", False) else None
     fix_base = bool(asset.get("fixBaseLink", True))
-    base_pos, base_quat = base_init_pose(env) if not fix_base else (None, None)
+    base_pos, base_quat = base_init_pose(env)
     keep_contacts = bool(asset.get("keepAssetContacts", is_mjcf(asset_file)))
     if keep_contacts and "selfCollisions" in asset:
         raise ConfigError(
@@ -192,8 +192,8 @@ def asset_path(asset_cfg: Mapping, yaml_dir: str | None, assets_dir: Path, key: 
 
 
 def base_init_pose(env: Mapping) -> tuple[tuple[float, ...] | None, tuple[float, ...] | None]:
-    """``env.baseInitState`` pos / rot (w, x, y, z) of a floating base; None where the YAML gives none (the
-    asset's root body pose is kept)."""
+    """``env.baseInitState`` pos / rot (w, x, y, z): where a floating base starts, or where a fixed one is welded;
+    None where the YAML gives none (the asset's root body pose is kept)."""
     return _pose(env.get("baseInitState") or {}, "env.baseInitState")
 
 

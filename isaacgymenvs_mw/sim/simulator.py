@@ -150,6 +150,10 @@ class Simulator:
         self.xmat = wp.to_torch(d.xmat)  # (N, nbody, 3, 3) body orientations: columns are the body axes in world
         self.site_xpos = wp.to_torch(d.site_xpos)  # (N, nsite, 3) site positions, world frame
         self.site_xmat = wp.to_torch(d.site_xmat)  # (N, nsite, 3, 3) site orientations
+        # (N, nmocap, 3) / (N, nmocap, 4) poses of the mocap bodies (world frame, (w, x, y, z)): bodies a task moves
+        # by writing them (a goal marker), not the physics; the next step's kinematics reads them.
+        self.mocap_pos = wp.to_torch(d.mocap_pos)
+        self.mocap_quat = wp.to_torch(d.mocap_quat)
         # Body velocities as MuJoCo keeps them: (angular, linear) in world axes, about the subtree centre of mass of
         # the body's root (see body_lin_vel).
         self.cvel = wp.to_torch(d.cvel)
@@ -564,6 +568,14 @@ class Simulator:
             names = [mujoco.mj_id2name(self.mj_model, mujoco.mjtObj.mjOBJ_SITE, i) for i in range(self.mj_model.nsite)]
             raise KeyError(f"no site named '{name}'; the model's sites: {names}")
         return sid
+
+    def mocap_index(self, body: str) -> int:
+        """Column of ``body`` in ``mocap_pos`` / ``mocap_quat`` (a body with ``mocap="true"`` in its MJCF)."""
+        index = int(self.mj_model.body_mocapid[self.body_id(body)])
+        if index < 0:
+            mocap = [n for b, n in enumerate(self.body_names) if self.mj_model.body_mocapid[b] >= 0]
+            raise ValueError(f"body '{body}' is not a mocap body; mocap bodies: {mocap}")
+        return index
 
     def body_id(self, name: str) -> int:
         if name not in self.body_names:

@@ -11,6 +11,7 @@ plus ``cfg/task/MyTask.yaml`` and ``cfg/train/MyTaskPPO.yaml``.
 
 from __future__ import annotations
 
+from isaacgymenvs_mw.tasks.allegro_hand import AllegroHand
 from isaacgymenvs_mw.tasks.ant import Ant
 from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
@@ -24,6 +25,7 @@ from isaacgymenvs_mw.tasks.humanoid import Humanoid
 from isaacgymenvs_mw.utils.errors import UnknownNameError
 
 isaacgym_task_map: dict[str, type[VecTask]] = {
+    "AllegroHand": AllegroHand,
     "Ant": Ant,
     "Anymal": Anymal,
     "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain

@@ -31,9 +31,8 @@ def wrap_to_pi(angle: torch.Tensor) -> torch.Tensor:
 
 
 def quat_from_yaw(yaw: torch.Tensor) -> torch.Tensor:
-    half = 0.5 * yaw
-    zeros = torch.zeros_like(yaw)
-    return torch.stack((torch.cos(half), zeros, zeros, torch.sin(half)), dim=-1)
+    """(N, 4) rotations by ``yaw`` (N,) rad about world z."""
+    return quat_about_axis(yaw, 2)
 
 
 def quat_axis(q: torch.Tensor, axis: int = 0) -> torch.Tensor:
@@ -60,3 +59,34 @@ def quat_from_matrix(r: torch.Tensor) -> torch.Tensor:
     y = torch.copysign(y, r[:, 0, 2] - r[:, 2, 0])
     z = torch.copysign(z, r[:, 1, 0] - r[:, 0, 1])
     return torch.stack((w, x, y, z), dim=-1)
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton products a b of quaternions (..., 4): the rotation b, then a."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack((aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw), dim=-1)
+
+
+def quat_conjugate(q: torch.Tensor) -> torch.Tensor:
+    """Conjugates (..., 4): the inverse rotations of unit quaternions."""
+    return torch.cat((q[..., :1], -q[..., 1:]), dim=-1)
+
+
+def quat_about_axis(angle: torch.Tensor, axis: int) -> torch.Tensor:
+    """(N, 4) rotations by ``angle`` (N,) rad about the x (0), y (1) or z (2) axis."""
+    half = 0.5 * angle
+    q = torch.zeros(*angle.shape, 4, dtype=angle.dtype, device=angle.device)
+    q[..., 0] = torch.cos(half)
+    q[..., 1 + axis] = torch.sin(half)
+    return q
+
+
+def rotation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Angle (rad, 0 ... pi) of the rotation between unit quaternions a and b (N, 4), IsaacGymEnvs' rot_dist:
+    2 asin(|vector part of a b*|), clamped so that rounding never leaves asin's domain."""
+    diff = quat_mul(a, quat_conjugate(b))
+    return 2.0 * torch.asin(torch.clamp(torch.linalg.norm(diff[..., 1:], dim=-1), max=1.0))
