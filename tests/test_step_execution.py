@@ -1,18 +1,26 @@
-"""How a step executes: the compiled post-physics step (sim.compileStep) against the eager one, and the
-simulator's state save/load that the throughput benchmark relies on.
+"""How a step executes: the compiled post-physics step (sim.compileStep) against the eager one, the step compiled
+alongside Warp's kernels against the step compiled at its first call, and the simulator's state save/load that the
+throughput benchmark relies on.
 
 The reference for the compiled step is the eager step of a second task in the same state with the same random
 streams: torch.compile (Inductor, here generating C++ for the CPU) must change how the step runs, not what it
 computes. On the GPU the same graph is generated as Triton kernels (benchmarks/check_step_graph.py checks that).
+Compiling ahead (during the first reset, while Warp's kernel modules compile on their threads) must change only when
+the compilation happens: the same tensors bit for bit, nothing run or drawn by the compilation itself.
 """
 
 from __future__ import annotations
 
+import threading
+
 import pytest
 import torch
 import torch._dynamo
+import warp as wp
 
 import isaacgymenvs_mw
+from isaacgymenvs_mw.sim import kernels
+from isaacgymenvs_mw.tasks.base.step_execution import _CompiledStep
 
 N = 4
 
@@ -22,22 +30,34 @@ def make_go1(overrides=()):
                                 overrides=list(overrides))
 
 
-def test_compiled_step_computes_what_the_eager_step_computes_through_resets():
-    compiled = make_go1(["+task.sim.compileStep=True"])
-    eager = make_go1(["+task.sim.compileStep=False"])
-    assert (compiled.step_execution, eager.step_execution) == ("compiled", "eager")
-    compiled.reset()
-    eager.reset()
-    eager.sim.load_state(compiled.sim.save_state())
-    eager.commands.copy_(compiled.commands)
+def go1_twins(overrides_a, overrides_b, compile_ahead_b=True):
+    """Two Go1 tasks reset into the same state (worlds and commands)."""
+    a, b = make_go1(overrides_a), make_go1(overrides_b)
+    b.execution.compile_ahead = compile_ahead_b
+    for task in (a, b):
+        torch.manual_seed(3)
+        task.reset()
+    b.sim.load_state(a.sim.save_state())
+    b.commands.copy_(a.commands)
+    return a, b
 
-    actions = torch.Generator().manual_seed(1)
-    saw_timeouts = False
-    for i in range(16):
-        a = 2.0 * torch.rand(N, compiled.num_actions, generator=actions) - 1.0
-        if i == 8:  # two envs reach the episode limit: reset_idx runs with a non-empty mask
-            for task in (compiled, eager):
+
+def actions_through_resets(tasks, steps=16):
+    """(step, random actions) for ``steps`` steps; before step 8 two envs are put one step from the episode limit,
+    so that reset_idx runs with a non-empty mask."""
+    generator = torch.Generator().manual_seed(1)
+    for i in range(steps):
+        if i == 8:
+            for task in tasks:
                 task.progress_buf[:2] = task.max_episode_length - 2
+        yield i, 2.0 * torch.rand(N, tasks[0].num_actions, generator=generator) - 1.0
+
+
+def test_compiled_step_computes_what_the_eager_step_computes_through_resets():
+    compiled, eager = go1_twins(["+task.sim.compileStep=True"], ["+task.sim.compileStep=False"])
+    assert (compiled.step_execution, eager.step_execution) == ("compiled", "eager")
+    saw_timeouts = False
+    for i, a in actions_through_resets((compiled, eager)):
         outputs = []
         # After the first steps, later ones (resets included) must reuse the compiled graph: a recompilation
         # per step would cost seconds each and, past torch's limit, fall back to eager without a word.
@@ -83,3 +103,188 @@ def test_save_and_load_state_replays_the_same_physics():
     for step in range(3):
         task.sim.simulate()
         assert torch.equal(task.sim.qpos, first[step]), f"physics step {step} after load_state differs"
+
+
+def step_outputs(task, actions):
+    obs, rew, done, extras = task.step(actions)
+    return (obs["obs"].clone(), obs["states"].clone(), rew.clone(), done.clone(), extras["time_outs"].clone(),
+            task.sim.qpos.clone(), task.sim.qvel.clone())
+
+
+def test_step_compiled_alongside_the_kernels_computes_bit_for_bit_what_the_first_step_compile_computes():
+    # The second is compiled by its first call, after the kernels: the path before the two overlapped.
+    ahead, first_call = go1_twins(["+task.sim.compileStep=True"], ["+task.sim.compileStep=True"],
+                                  compile_ahead_b=False)
+    saw_resets = False
+    for i, a in actions_through_resets((ahead, first_call)):
+        outputs = []
+        for task in (ahead, first_call):
+            torch.manual_seed(200 + i)
+            # The steps run under inference_mode, as the runner's rollout does, after a reset outside it, as
+            # RslRlVecEnv's is. Later steps must not compile the step again.
+            with torch._dynamo.config.patch(error_on_recompile=i > 0), torch.inference_mode():
+                outputs.append(step_outputs(task, a))
+        for name, x, y in zip(("obs", "states", "rew", "done", "time_outs", "qpos", "qvel"), *outputs):
+            assert torch.equal(x, y), f"{name} differs at step {i}"
+        saw_resets |= bool(outputs[0][4].any())
+    assert saw_resets
+    # The step compiled ahead was used as it was: its first call compiled nothing (one would mean torch's guards
+    # found the first step's state or mode unlike those it was compiled in), and nothing compiled it again.
+    assert (ahead.execution.compiled_at, first_call.execution.compiled_at) == ("alongside Warp's kernels", "first step")
+    assert ahead.execution._step.compiles == first_call.execution._step.compiles == 1
+
+
+class Counter:
+    """A stand-in for a task's post-physics step: tensor work, a random draw and Python state."""
+
+    def __init__(self) -> None:
+        self.x = torch.zeros(5)
+        self.extras = {"calls": 0}
+
+    def after(self) -> None:
+        self.x.add_(torch.rand(5)).mul_(2.0)
+        self.extras["calls"] += 1
+
+    def after_with_host_work(self) -> None:
+        self.x.add_(1.0)
+        print("host work")  # a graph break: torch runs this line itself, between two compiled graphs
+        self.extras["calls"] += 1
+        self.x.mul_(2.0)
+
+
+def test_compiling_ahead_runs_nothing_and_the_first_call_uses_what_it_compiled():
+    counter, reference = Counter(), Counter()
+    step = _CompiledStep(counter.after)
+    rng = torch.get_rng_state()
+    assert step.compile_only() is None
+    assert step.compiles == 1
+    assert torch.equal(counter.x, torch.zeros(5)) and counter.extras == {"calls": 0}
+    assert torch.equal(torch.get_rng_state(), rng)  # no random draw consumed
+    for i in range(3):
+        torch.manual_seed(7)
+        # The first call finds the code compiled (later ones recompile: torch specialises on the int in extras).
+        with torch._dynamo.config.patch(error_on_recompile=i == 0):
+            step.fn()
+        torch.manual_seed(7)
+        reference.after()
+    assert torch.equal(counter.x, reference.x) and counter.extras == reference.extras == {"calls": 3}
+
+
+def test_a_step_with_a_graph_break_is_left_to_its_first_call(capsys):
+    counter, reference = Counter(), Counter()
+    step = _CompiledStep(counter.after_with_host_work)
+    why_not = step.compile_only()
+    assert why_not is not None and why_not.startswith("Unsupported")
+    assert torch.equal(counter.x, torch.zeros(5)) and counter.extras == {"calls": 0}
+    assert "host work" not in capsys.readouterr().out  # nothing before or after the break ran
+    for _ in range(2):
+        step.fn()
+        reference.after_with_host_work()
+    assert torch.equal(counter.x, reference.x) and counter.extras == reference.extras == {"calls": 2}
+
+
+def test_where_torch_would_run_the_step_uncompiled_compiling_ahead_runs_nothing():
+    # Tasks compiled before in this process do not count against a new task's step: each has its own code object.
+    many, fresh = [Counter() for _ in range(3)], Counter()
+    with torch._dynamo.config.patch(recompile_limit=2):
+        for counter in many:
+            _CompiledStep(counter.after).fn()
+        assert _CompiledStep(fresh.after).compile_only() is None
+    with torch._dynamo.config.patch(recompile_limit=0):  # no compilation allowed: torch would run it uncompiled
+        why_not = _CompiledStep(fresh.after).compile_only()
+    assert why_not is not None and "RecompileLimit" in why_not
+    with torch.compiler.set_stance("force_eager"):
+        why_not = _CompiledStep(fresh.after).compile_only()
+    assert why_not is not None and "force_eager" in why_not
+    assert torch.equal(fresh.x, torch.zeros(5)) and fresh.extras == {"calls": 0}
+
+
+def test_an_error_in_the_compile_alongside_the_kernels_surfaces_at_the_first_step():
+    task = make_go1(["+task.sim.compileStep=True"])
+    task.reset()
+
+    def failing_inductor(gm, example_inputs):
+        raise RuntimeError("inductor could not generate code")
+
+    task.execution._step._inductor = failing_inductor
+    with pytest.raises(Exception, match="inductor could not generate code"):
+        task.step(task.zero_actions())
+
+
+@wp.kernel(module="unique")
+def _fill_ones(x: wp.array(dtype=float)):
+    x[wp.tid()] = 1.0
+
+
+@wp.kernel(module="unique")
+def _fill_twos(x: wp.array(dtype=float)):
+    x[wp.tid()] = 2.0
+
+
+@wp.kernel(module="unique")
+def _fill_threes(x: wp.array(dtype=float)):
+    x[wp.tid()] = 3.0
+
+
+@pytest.fixture
+def three_modules():
+    """Entry points launching kernels of three modules of their own (recorded, never run), and those modules."""
+    found = (_fill_ones, _fill_twos, _fill_threes)
+    scratch = wp.zeros(2, dtype=float, device="cpu")
+    entry_points = [lambda k=k: wp.launch(k, dim=2, inputs=[scratch], device="cpu") for k in found]
+    modules = [k.module for k in found]
+    kernels._loaded.difference_update([e for e in kernels._loaded if e[0] in modules])  # pending in every test
+    return entry_points, modules
+
+
+def test_kernel_modules_compile_while_the_step_compiles_and_errors_come_back(monkeypatch, three_modules):
+    entry_points, modules = three_modules
+    alongside_ran = threading.Event()
+    compiled, waited_out = [], []
+
+    def force_load(device=None, modules=None, block_dim=None, max_workers=None):
+        # Each module finishes only once `alongside` has started: were it called after the modules, this would wait
+        # out its timeout and say so.
+        if not alongside_ran.wait(timeout=60):
+            waited_out.append(modules[0])
+        compiled.append(modules[0])
+
+    monkeypatch.setattr(wp, "force_load", force_load)
+    assert kernels.load_kernels(wp.get_device("cpu"), entry_points, max_workers=3, alongside=alongside_ran.set) == 3
+    assert sorted(map(id, compiled)) == sorted(map(id, modules)) and not waited_out
+
+
+def test_a_module_that_fails_to_compile_fails_the_load_in_the_calling_thread(monkeypatch, three_modules):
+    entry_points, modules = three_modules
+
+    def force_load(device=None, modules=None, block_dim=None, max_workers=None):
+        if modules[0] is modules_to_fail[0]:
+            raise RuntimeError("nvrtc: error in module 2")
+
+    modules_to_fail = [modules[1]]
+    monkeypatch.setattr(wp, "force_load", force_load)
+    ran = []
+    with pytest.raises(RuntimeError, match=r"^nvrtc: error in module 2$"):
+        kernels.load_kernels(wp.get_device("cpu"), entry_points, max_workers=2, alongside=lambda: ran.append(1))
+    assert ran == [1]
+
+
+def test_an_error_alongside_is_raised_once_the_started_modules_are_done(monkeypatch, three_modules):
+    entry_points, _ = three_modules
+    running = []
+
+    def force_load(device=None, modules=None, block_dim=None, max_workers=None):
+        running.append(modules[0])
+        release.wait(timeout=60)
+        running.remove(modules[0])
+
+    release = threading.Event()
+    monkeypatch.setattr(wp, "force_load", force_load)
+
+    def alongside():
+        release.set()
+        raise ValueError("the step could not be compiled")
+
+    with pytest.raises(ValueError, match="the step could not be compiled"):
+        kernels.load_kernels(wp.get_device("cpu"), entry_points, max_workers=1, alongside=alongside)
+    assert running == []  # no module thread is left compiling behind the error

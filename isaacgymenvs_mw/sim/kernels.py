@@ -5,6 +5,9 @@ time one of its kernels launches: one module after another, dozens of them. ``lo
 simulator's entry points once with launches recorded rather than executed, then compiles and loads the recorded
 modules on a pool of threads (what ``wp.force_load(max_workers=...)`` does), printing one progress line with an
 estimate of the time left and one line when done. Warp's own line per module is shown only with ``verbose``.
+The calling thread is free while the pool works: ``alongside`` runs there meanwhile (VecTask compiles its
+post-physics step with torch.compile, CPU work of the same size, so that a cold start pays the longer of the two
+rather than their sum).
 """
 
 from __future__ import annotations
@@ -123,8 +126,13 @@ def _cache_entries() -> set[str]:
 
 
 def load_kernels(device: wp.context.Device, entry_points: Sequence[Callable[[], None]],
-                 max_workers: int | None = None) -> int | None:
+                 max_workers: int | None = None, alongside: Callable[[], None] | None = None) -> int | None:
     """Compile/load every module the entry points launch, on ``max_workers`` threads (default: all cores).
+
+    ``alongside`` is called once in this thread while the pool compiles (also when there is nothing to load); it
+    must not launch Warp kernels. An exception from it or from a module's compilation is raised here, unchanged,
+    once the modules already compiling are done; the ones not yet started are dropped (a Ctrl-C does not wait for
+    them either).
 
     Returns how many modules were loaded now (0 when all were already loaded in this process), or None when the
     dry run failed and nothing was recorded. Anything the recording misses is still compiled on first use, as
@@ -135,27 +143,38 @@ def load_kernels(device: wp.context.Device, entry_points: Sequence[Callable[[], 
     except Exception as err:  # noqa: BLE001  (a dry run that fails only loses the head start)
         if _state["verbose"]:
             print(f"{_PREFIX} Warp kernels load on first use ({type(err).__name__}: {err})", flush=True)
-        return None
-    pending = [(m, bd) for m, bd in recorded if (m, str(device), bd) not in _loaded]
+        recorded = None
+    pending = [(m, bd) for m, bd in recorded or () if (m, str(device), bd) not in _loaded]
     if not pending:
-        return 0
+        if alongside is not None:
+            alongside()
+        return None if recorded is None else 0
     workers = max(1, int(max_workers or os.cpu_count() or 1))
     before = _cache_entries()
     start = last_print = time.perf_counter()
+    finished: list[float] = []  # when each module was ready: Warp's own time, whatever ``alongside`` takes
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(wp.force_load, device=device, modules=[m], block_dim=bd, max_workers=0)
                    for m, bd in pending]
-        for done, future in enumerate(as_completed(futures), start=1):
-            future.result()
-            now = time.perf_counter()
-            if done < len(futures) and now - last_print >= _PROGRESS_EVERY_S:
-                left = (now - start) / done * (len(futures) - done)
-                print(f"{_PREFIX} Warp kernels on {device}: {done}/{len(futures)} modules ready after "
-                      f"{now - start:.0f} s, about {left:.0f} s left", flush=True)
-                last_print = now
+        for future in futures:
+            future.add_done_callback(lambda _: finished.append(time.perf_counter()))
+        try:
+            if alongside is not None:
+                alongside()
+            for future in as_completed(futures):
+                future.result()
+                now, done = time.perf_counter(), sum(f.done() for f in futures)  # all ready by now
+                if done < len(futures) and now - last_print >= _PROGRESS_EVERY_S:
+                    left = (now - start) / done * (len(futures) - done)
+                    print(f"{_PREFIX} Warp kernels on {device}: {done}/{len(futures)} modules ready after "
+                          f"{now - start:.0f} s, about {left:.0f} s left", flush=True)
+                    last_print = now
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)  # the with-block still waits for the running ones
+            raise
     _loaded.update((m, str(device), bd) for m, bd in pending)
     compiled = len(_cache_entries() - before)
-    took = time.perf_counter() - start
+    took = max(finished) - start
     cache = wp.config.kernel_cache_dir
     if compiled:
         detail = f"{compiled} compiled on {workers} threads, {len(pending) - compiled} from the cache {cache}"

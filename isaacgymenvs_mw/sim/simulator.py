@@ -113,7 +113,10 @@ class Simulator:
             # Set before anything is compiled or captured: the bits select the kernels (Warp module options).
             self.model.opt.deterministic = int(mjw.DeterminismType.ALL if deterministic else mjw.DeterminismType.NONE)
             self.data = mjw.make_data(mj_model, nworld=self.num_worlds, nconmax=nconmax, njmax=njmax)
-        self._load_kernels(nconmax, njmax)
+        # Kernels load on the first launch, or earlier when the owner calls load_kernels (VecTask does, so that it can
+        # compile its step meanwhile).
+        self._sizes = (nconmax, njmax)
+        self._kernels_recorded: bool | None = None  # None: not loaded yet
 
         self._bind_views()
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
@@ -126,14 +129,23 @@ class Simulator:
         if cameras:
             self.cameras = Cameras(mj_model, self.model, self.data, cameras, self.num_worlds, self.wp_device)
 
-    def _load_kernels(self, nconmax: int | None, njmax: int | None) -> None:
-        """Compile every kernel module that stepping, forward and kinematics use, in parallel, before the first step
-        (a dry run on scratch data of one world records them; see sim/kernels.py)."""
+    def load_kernels(self, alongside: Callable[[], None] | None = None) -> None:
+        """Compile every kernel module that stepping, forward and kinematics use, in parallel, before the first launch
+        (a dry run on scratch data of one world records them; see sim/kernels.py). ``alongside`` runs in this thread
+        meanwhile and must not launch Warp kernels; its exceptions and the compiler's are raised here.
+
+        Loads once: a later call only runs ``alongside``. The first launch through the simulator calls it when its
+        owner has not."""
+        if self._kernels_recorded is not None:
+            if alongside is not None:
+                alongside()
+            return
         with wp.ScopedDevice(self.wp_device):
-            scratch = mjw.make_data(self.mj_model, nworld=1, nconmax=nconmax, njmax=njmax)
+            scratch = mjw.make_data(self.mj_model, nworld=1, nconmax=self._sizes[0], njmax=self._sizes[1])
             entry_points = [lambda: mjw.step(self.model, scratch), lambda: mjw.forward(self.model, scratch),
                             lambda: mjw.kinematics(self.model, scratch)]
-            self._kernels_recorded = load_kernels(self.wp_device, entry_points) is not None
+            loaded = load_kernels(self.wp_device, entry_points, alongside=alongside)
+        self._kernels_recorded = loaded is not None
 
     # ------------------------------------------------------------------ views
     def _bind_views(self) -> None:
@@ -275,6 +287,8 @@ class Simulator:
         Before a graph is first captured ``fn`` runs once eagerly (to compile its kernels); with ``keep_state`` the
         carried state is put back after that run, so that a first physics call advances the worlds once, not twice.
         """
+        if self._kernels_recorded is None:
+            self.load_kernels()
         if not self.use_graphs:
             with wp.ScopedDevice(self.wp_device):
                 fn()

@@ -10,11 +10,23 @@ Both need the task's hooks to be device-only tensor code: no host syncs, no Warp
 A task with cameras adds two phases after those (``sensors``): the render (Warp: its own graph, replayed by the
 simulator) and the image observation (torch: a third captured graph), so that images show the state after the
 resets.
+
+Start-up: compiling the post-physics step (Inductor and Triton code generation, about 19 s on an H200 host with cold
+caches) and compiling Warp's kernel modules (about 27 s, on a pool of threads) are both CPU work, and neither needs
+the other. So the first step, before anything else, has the simulator load its kernels with the step's compilation
+running meanwhile in this thread (``Simulator.load_kernels(alongside=...)``; VecTask leaves the kernels to it when
+the step is compiled). The step is compiled there without being run: the compiled code is called in a dry mode that
+stops before it executes (no tensor, random stream or Python object changes), and torch keeps it, so the step's own
+call finds it compiled. It is compiled at the first step, not at the reset, because torch's guards include the
+caller's mode: training and evaluation step under ``torch.inference_mode``, and code compiled outside it would be
+compiled again. That takes one graph for the whole step; a task whose step has a graph break is compiled by its first
+call instead, as before.
 """
 
 from __future__ import annotations
 
 import time
+import types
 import warnings
 from typing import Callable
 
@@ -33,11 +45,18 @@ class StepExecution:
 
     def __init__(self, name: str, before: Callable[[torch.Tensor], None], physics: Callable[[], None],
                  after: Callable[[], None], sim_cfg: dict, graphs_possible: bool, action_shape: tuple[int, int],
-                 device: str) -> None:
+                 device: str, load_kernels: Callable[[Callable[[], None] | None], None] | None = None) -> None:
         self.name, self.before, self.physics = name, before, physics
         self.graphs_wanted = bool(sim_cfg.get("captureStep", True)) and graphs_possible
         self.compiled = _compile_wanted(sim_cfg.get("compileStep", "auto"), self.graphs_wanted)
-        self.after = after if not self.compiled else self._compile_on_first_call(after)
+        self._step = _CompiledStep(after) if self.compiled else None
+        self.after = after if self._step is None else self._first_compiled_call
+        # The simulator's load_kernels, which the first step calls with the step's compilation alongside
+        # (compile_ahead=False: compiled by its first call, after the kernels; tests compare the two).
+        self._load_kernels = load_kernels
+        self.compile_ahead = True
+        # Where the step was compiled: "alongside Warp's kernels", "first step" (None: not yet, or not compiled).
+        self.compiled_at: str | None = None
         self.graph_actions = torch.zeros(action_shape, device=device)  # a captured graph reads its input here
         self.graphs: tuple[torch.cuda.CUDAGraph, ...] | None = None
         # (render, observe) when the task observes camera images: run after ``after`` (VecTask sets it).
@@ -52,6 +71,10 @@ class StepExecution:
         return "+".join(parts) or "eager"
 
     def run(self, actions: torch.Tensor) -> None:
+        if self.steps == 0 and self._load_kernels is not None:
+            # Warp's kernels load (when nothing has loaded them yet), with the step compiled meanwhile in the state
+            # and mode its first call sees.
+            self._load_kernels(self._compile_ahead if self._step is not None and self.compile_ahead else None)
         if self.graphs_wanted and self.steps >= WARMUP_STEPS:
             self.graph_actions.copy_(actions)
             if self.graphs is None:
@@ -72,20 +95,31 @@ class StepExecution:
                 self.sensors[1]()
         self.steps += 1
 
-    def _compile_on_first_call(self, after: Callable[[], None]) -> Callable[[], None]:
-        # Random draws stay torch's own (fallback_random), so a seed gives the numbers the eager step gives.
-        compiled = torch.compile(after, dynamic=False, options={"fallback_random": True})
+    def _first_compiled_call(self) -> None:
+        # Compiles unless the first step compiled it ahead (about 15 s on a GPU host with cold caches, 2 s warm): say
+        # where the time of a run's first iteration went, then step with the compiled function alone.
+        started, graphs = time.perf_counter(), self._step.compiles
+        self._step.fn()
+        self.after = self._step.fn
+        if self._step.compiles > graphs:
+            again = self.compiled_at is not None  # compiled ahead, but torch's guards found the state changed since
+            self.compiled_at = "first step"
+            print(f"[isaacgymenvs_mw] {'re' if again else ''}compiled {self.name}'s post-physics step "
+                  f"(sim.compileStep) at the first step in {time.perf_counter() - started:.1f} s", flush=True)
 
-        def first_call() -> None:
-            # The first call compiles (about 15 s on a GPU host with cold caches, 2 s warm): say where the time of
-            # a run's first iteration went, then step with the compiled function alone.
-            started = time.perf_counter()
-            compiled()
-            print(f"[isaacgymenvs_mw] compiled {self.name}'s post-physics step (sim.compileStep) "
-                  f"in {time.perf_counter() - started:.1f} s", flush=True)
-            self.after = compiled
-
-        return first_call
+    def _compile_ahead(self) -> None:
+        """Compile the step without running it (the simulator calls this while its kernels compile). When torch
+        cannot take the whole step as one graph, it compiles at the first step instead, as it always did; any other
+        error is raised here, as the first step would have raised it."""
+        started = time.perf_counter()
+        why_not = self._step.compile_only()
+        if why_not is not None:
+            print(f"[isaacgymenvs_mw] {self.name}'s post-physics step is compiled by its first call instead "
+                  f"({why_not})", flush=True)
+            return
+        self.compiled_at = "alongside Warp's kernels"
+        print(f"[isaacgymenvs_mw] compiled {self.name}'s post-physics step (sim.compileStep) "
+              f"in {time.perf_counter() - started:.1f} s, alongside Warp's kernels", flush=True)
 
     def _capture(self) -> None:
         before, after = torch.cuda.CUDAGraph(), torch.cuda.CUDAGraph()
@@ -106,6 +140,82 @@ class StepExecution:
                 "+task.sim.captureStep=False"
             ) from err
         self.graphs = (before, after) if self.sensors is None else (before, after, observe)
+
+
+class _DryRun(Exception):
+    """Raised instead of running code that ``_CompiledStep.compile_only`` has compiled."""
+
+
+class _CompiledStep:
+    """``torch.compile`` of the post-physics function ``fn`` (Inductor), which can also compile without running.
+
+    Random draws stay torch's own (``fallback_random``), so a seed gives the numbers the eager step gives. Inductor is
+    reached through a backend of ours that wraps each compiled graph: in dry mode the wrapper raises instead of
+    running it. Dynamo calls a frame's graph before it replays any of the frame's side effects, and keeps what it
+    compiled when the call raises, so a dry call leaves everything as it was and the next call finds the code ready.
+    """
+
+    def __init__(self, fn: Callable[[], None]) -> None:
+        self._inductor = torch._TorchCompileInductorWrapper(None, {"fallback_random": True}, False)
+        self._dry = False
+        self.compiles = 0  # graphs compiled so far
+        self.fn = torch.compile(_with_own_code(fn), backend=self._backend, dynamic=False)
+
+    def _backend(self, gm: torch.fx.GraphModule, example_inputs: list) -> Callable:
+        compiled = self._inductor(gm, example_inputs)
+        self.compiles += 1
+
+        def run(*args):
+            if self._dry:
+                raise _DryRun()
+            return compiled(*args)
+
+        run._boxed_call = getattr(compiled, "_boxed_call", False)  # the calling convention torch expects of it
+        return run
+
+    def compile_only(self) -> str | None:
+        """Compile ``fn`` as one graph, running none of it; None when done. When torch cannot (a graph break, its
+        recompile limit, torch.compile turned off, a torch without ``error_on_graph_break``), nothing has run either
+        and the reason is returned: the first call then compiles, or runs uncompiled, as torch decides."""
+        dynamo = torch._dynamo
+        if not hasattr(dynamo, "error_on_graph_break"):  # torch < 2.9
+            return f"torch {torch.__version__} has no torch._dynamo.error_on_graph_break"
+        # Where torch would run the function uncompiled, the dry call would run it: TORCHDYNAMO_DISABLE, a stance.
+        stance = getattr(getattr(dynamo.eval_frame, "_stance", None), "stance", "default")
+        if dynamo.config.disable or stance != "default":
+            return f"torch.compile is off in this process (TORCHDYNAMO_DISABLE or the stance {stance!r})"
+        # A graph break would run the code before it eagerly, and so would torch past its recompile limit (many
+        # compiled tasks in one process) or on an error it was told to suppress: here all are errors, raised before
+        # anything runs.
+        limit_hit = getattr(dynamo.exc, "FailOnRecompileLimitHit", dynamo.exc.Unsupported)
+        strict = {"suppress_errors": False}
+        if hasattr(dynamo.config, "fail_on_recompile_limit_hit"):
+            strict["fail_on_recompile_limit_hit"] = True
+        self._dry = True
+        try:
+            with dynamo.error_on_graph_break(True), dynamo.config.patch(**strict):
+                self.fn()
+        except _DryRun:
+            return None
+        except (dynamo.exc.Unsupported, limit_hit) as err:
+            return f"{type(err).__name__}: {(str(err).strip().splitlines() or [''])[0][:200]}"
+        finally:
+            self._dry = False
+        # Not expected (the step's first graph runs first); the state has changed, so the run must not go on.
+        raise RuntimeError("the post-physics step ran while it was only to be compiled (torch ran it outside a "
+                           "compiled graph); set +task.sim.compileStep=False and report this")
+
+
+def _with_own_code(fn: Callable[[], None]) -> Callable[[], None]:
+    """``fn`` (a function or bound method) with a code object of its own. torch keeps compiled code, and counts
+    compilations against its recompile limit, per code object, and VecTask's step is one function for all tasks: in a
+    process with several compiled tasks, their compilations would add up and, past the limit, torch would mark the
+    step to run uncompiled, for every task, a dry call included."""
+    func = getattr(fn, "__func__", fn)
+    copy = types.FunctionType(func.__code__.replace(), func.__globals__, func.__name__, func.__defaults__,
+                              func.__closure__)
+    copy.__kwdefaults__, copy.__qualname__ = func.__kwdefaults__, func.__qualname__
+    return types.MethodType(copy, fn.__self__) if hasattr(fn, "__func__") else copy
 
 
 def _compile_wanted(value, graphs_wanted: bool) -> bool:

@@ -30,9 +30,10 @@ A ported IsaacGymEnvs task may still override ``post_physics_step``; it then cal
 
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import gymnasium as gym
 import numpy as np
@@ -127,6 +128,8 @@ class VecTask(ObservationGroups):
         self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
         self.set_viewer()
         self.allocate_buffers()
+        if not self.execution.compiled:  # a compiled step has Warp's kernels load while it compiles (execution.start)
+            self.sim.load_kernels()
         self.obs_dict: dict[str, torch.Tensor] = {}
         self.rewards: RewardTerms | None = None  # a task that sums named terms sets it (tasks/base/rewards.py)
         self.obs_layout: ObsLayout | None = None
@@ -198,7 +201,7 @@ class VecTask(ObservationGroups):
         self.execution = StepExecution(
             type(self).__name__, self._before_physics, self.sim.simulate, self._after_physics, self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
-            action_shape=(n, self.num_actions), device=dev,
+            action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
         )
 
     def set_viewer(self) -> None:
@@ -332,7 +335,8 @@ class VecTask(ObservationGroups):
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
-        self.execution.run(actions)  # pre-physics, physics, post-physics: eager, compiled or captured
+        with self._step_extras():
+            self.execution.run(actions)  # pre-physics, physics, post-physics: eager, compiled or captured
         self.control_steps += 1
 
         # The learner bootstraps the value of the episodes in "time_outs": time-outs and successes.
@@ -356,6 +360,18 @@ class VecTask(ObservationGroups):
         if self.video_recorder is not None:
             self.video_recorder.capture(self.control_steps)
         return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
+
+    @contextlib.contextmanager
+    def _step_extras(self) -> Iterator[None]:
+        """The step's torch work writes into an empty ``extras``, merged into the run's afterwards. torch.compile
+        guards on every entry of a dict the compiled step writes into, and the run's entries are remade by each step
+        (as inference tensors in training): guarded, they would make the first steps compile the step again."""
+        extras, self.extras = self.extras, {}
+        try:
+            yield
+        finally:
+            extras.update(self.extras)
+            self.extras = extras
 
     def _before_physics(self, actions: torch.Tensor) -> None:
         action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
