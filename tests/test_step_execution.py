@@ -11,6 +11,9 @@ the compilation happens: the same tensors bit for bit, nothing run or drawn by t
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import threading
 
 import pytest
@@ -288,3 +291,27 @@ def test_an_error_alongside_is_raised_once_the_started_modules_are_done(monkeypa
     with pytest.raises(ValueError, match="the step could not be compiled"):
         kernels.load_kernels(wp.get_device("cpu"), entry_points, max_workers=1, alongside=alongside)
     assert running == []  # no module thread is left compiling behind the error
+
+
+def test_inductor_compile_workers_start_with_sigterm_ignored_and_the_handler_comes_back():
+    """A group-wide SIGTERM (timeout, a scheduler) must stop the run through its own handler, not kill Inductor's
+    compile workers: the worker process starts with SIGTERM ignored (the kernel's SigIgn mask of the process), the
+    main process keeps its handler. A fresh interpreter, so that no earlier test has made the pool already."""
+    code = """
+import signal, sys
+from torch._inductor.async_compile import AsyncCompile, shutdown_compile_workers
+from isaacgymenvs_mw.tasks.base.step_execution import start_compile_workers_ignoring_sigterm
+def handler(signum, frame):
+    pass
+signal.signal(signal.SIGTERM, handler)
+start_compile_workers_ignoring_sigterm()
+pid = AsyncCompile.process_pool().process.pid
+with open(f"/proc/{pid}/status") as status:
+    ignored = int(next(line for line in status if line.startswith("SigIgn:")).split()[1], 16)
+print(bool(ignored >> (signal.SIGTERM - 1) & 1), signal.getsignal(signal.SIGTERM) is handler)
+shutdown_compile_workers()
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "TORCHINDUCTOR_COMPILE_THREADS": "2"})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-2:] == ["True", "True"], out.stdout

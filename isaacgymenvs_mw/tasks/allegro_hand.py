@@ -225,8 +225,10 @@ class AllegroHand(VecTask):
         # The cube: its start position with uniform noise, a random orientation (IGE's draw), at rest.
         noise = self.k["resetPositionNoise"] * (2.0 * torch.rand((n, 3), device=dev) - 1.0)
         zero = torch.zeros((n, 3), device=dev)
+        # No pose refresh: every observed quantity is read from qpos, the goal marker is a mocap body, and the next
+        # physics step derives the poses (a Warp launch here would split the compiled step).
         self.sim.write_state(mask, root_pos=self.object_start_pos + noise, root_quat=random_rotation(n, dev),
-                             root_lin_vel=zero, root_ang_vel=zero, asset="object", refresh=True)
+                             root_lin_vel=zero, root_ang_vel=zero, asset="object", refresh=False)
         self._new_goals(mask)
         self.progress_buf.masked_fill_(mask, 0)
 

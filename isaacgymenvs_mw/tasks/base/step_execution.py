@@ -25,6 +25,8 @@ call instead, as before.
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
 import types
 import warnings
@@ -71,6 +73,8 @@ class StepExecution:
         return "+".join(parts) or "eager"
 
     def run(self, actions: torch.Tensor) -> None:
+        if self.steps == 0 and self._step is not None:
+            start_compile_workers_ignoring_sigterm()
         if self.steps == 0 and self._load_kernels is not None:
             # Warp's kernels load (when nothing has loaded them yet), with the step compiled meanwhile in the state
             # and mode its first call sees.
@@ -216,6 +220,33 @@ def _with_own_code(fn: Callable[[], None]) -> Callable[[], None]:
                               func.__closure__)
     copy.__kwdefaults__, copy.__qualname__ = func.__kwdefaults__, func.__qualname__
     return types.MethodType(copy, fn.__self__) if hasattr(fn, "__func__") else copy
+
+
+def start_compile_workers_ignoring_sigterm() -> None:
+    """Start TorchInductor's compile-worker processes with SIGTERM ignored, before the step compiles.
+
+    ``timeout`` and job schedulers send SIGTERM to the whole process group. The training process then stops at the
+    next env step and keeps its checkpoint and summary (``learning/launch.py``), but Inductor's workers share the
+    group and leave SIGTERM at its default (they ignore SIGINT themselves), so they died: on an H200 a run signalled
+    in its first step hung there, and one signalled in iteration 1856 died without its checkpoint or summary
+    (2026-11-25). An ignored signal stays ignored across fork and exec, so workers started while it is ignored
+    outlive it; they exit with their parent (Inductor's own watchdog). The main thread's handler is ignored only
+    while the worker process starts (milliseconds). Nothing happens where the pool already exists or is not made of
+    subprocesses."""
+    try:
+        from torch._inductor import config
+        from torch._inductor.async_compile import AsyncCompile, get_compile_threads
+    except ImportError:
+        return
+    start_pool = getattr(AsyncCompile, "process_pool", None)
+    if (start_pool is None or getattr(config, "worker_start_method", None) != "subprocess"
+            or get_compile_threads() <= 1 or threading.current_thread() is not threading.main_thread()):
+        return
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        start_pool()  # cached by torch: the pool the compile then uses
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _compile_wanted(value, graphs_wanted: bool) -> bool:
