@@ -256,3 +256,22 @@ def test_unusable_gl_backend_gives_the_same_clear_error_twice_and_no_abort(tmp_p
     (line,) = [ln for ln in proc.stdout.splitlines() if ln.startswith("GL-ERROR:")]
     assert "MUJOCO_GL='glfw'" in line and "libosmesa6" in line and "MUJOCO_GL=egl" in line
     assert not (tmp_path / "videos").exists()
+
+
+def test_mocap_goal_marker_is_filmed_where_the_task_puts_it(tmp_path):
+    """AllegroHand's goal marker is a mocap body the task moves: the film shows it at the task's pose (and frames
+    the scene with it there), not at the pose its file gives."""
+    task = make("AllegroHand", num_envs=1)
+    task.reset()
+    recorder = VideoRecorder(task.sim, tmp_path, fps=30, width=W, height=H)
+    goal = task.sim.body_id("goal/cube")
+    task.goal_quat[0] = torch.tensor([0.0, 0.0, 0.0, 1.0])  # half a turn about z
+    task.sim.mocap_quat[0, task.goal_marker] = task.goal_quat[0]
+    seg = recorder.render(segmentation=True)
+    np.testing.assert_allclose(recorder.data.xpos[goal], task.sim.mocap_pos[0, task.goal_marker].numpy(), atol=1e-6)
+    np.testing.assert_allclose(recorder.data.xquat[goal], [0.0, 0.0, 0.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(recorder.data.xpos[goal], [-0.2, -0.26, 0.64], atol=1e-6)
+    goal_geoms = [g for g in range(recorder.model.ngeom) if recorder.model.geom_bodyid[g] == goal]
+    assert np.isin(seg, goal_geoms).sum() > 20  # in the picture
+    recorder.close()
+    task.close()

@@ -142,6 +142,7 @@ class VideoRecorder:
         self._ground = _ground_ids(self.model)  # styled as ground and left out of the camera's framing
         self._style_model()
         self.data = mujoco.MjData(self.model)
+        self._copy_mocap()  # where the task has put its mocap bodies (a goal marker) so far
         mujoco.mj_forward(self.model, self.data)  # qpos0: used to frame the model
         self._planes = [g for g in range(self.model.ngeom)
                         if int(self.model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)]
@@ -258,9 +259,16 @@ class VideoRecorder:
         """World ``self.world``'s state from the device into the host MjData (a device->host copy: a sync)."""
         self.data.qpos[:] = self.sim.qpos[self.world].detach().cpu().numpy()
         self.data.qvel[:] = self.sim.qvel[self.world].detach().cpu().numpy()
+        self._copy_mocap()
         mujoco.mj_forward(self.model, self.data)
         if self.track_body_id is not None:
             self.camera.lookat[:] = self.data.xpos[self.track_body_id]
+
+    def _copy_mocap(self) -> None:
+        """Mocap bodies are moved by the task, not by qpos: their poses come from the device too."""
+        if self.model.nmocap:
+            self.data.mocap_pos[:] = self.sim.mocap_pos[self.world].detach().cpu().numpy()
+            self.data.mocap_quat[:] = self.sim.mocap_quat[self.world].detach().cpu().numpy()
 
     def render(self, segmentation: bool = False) -> np.ndarray:
         """One frame of the world as it is now on the device: (height, width, 3) uint8 RGB.
