@@ -20,12 +20,36 @@ from itertools import chain
 
 import torch
 from rsl_rl.algorithms import PPO
+from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
 
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
 EAGER_UPDATES_BEFORE_CAPTURE = 1
+
+
+# rl_games' soft bound on the action means: outside +-1.1 a mean costs its squared excess (its bounds_loss).
+SOFT_BOUND = 1.1
+
+
+def bounds_loss(mean: torch.Tensor, soft_bound: float = SOFT_BOUND) -> torch.Tensor:
+    """rl_games' bounds loss (IsaacGymEnvs' PPO configs, ``bounds_loss_coef``): per sample the sum over actions of
+    the squared distance of each action mean beyond +-``soft_bound``, averaged over the batch. Actions are clipped to
+    [-1, 1] by the env, so a mean far outside gets no gradient from the surrogate; this pulls it back."""
+    above = torch.clamp(mean - soft_bound, min=0.0)
+    below = torch.clamp(mean + soft_bound, max=0.0)
+    return (above.pow(2) + below.pow(2)).sum(dim=-1).mean()
+
+
+def _non_negative(value: object, key: str) -> float:
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not number >= 0.0:  # NaN too
+        raise ConfigError(f"{key}={value!r} is invalid: give a number >= 0")
+    return number
 
 
 class SyncFreePPO(PPO):
@@ -35,14 +59,21 @@ class SyncFreePPO(PPO):
     ``fixed`` schedule, one or several GPUs. Random network distillation and symmetry augmentation are rejected with a
     pointer to rsl-rl-lib's own ``PPO``, which supports them.
 
+    ``bounds_loss_coef`` (train YAML ``algorithm.bounds_loss_coef``, default 0: none): weight of rl_games' bounds
+    loss on the action means (``bounds_loss``), which IsaacGymEnvs' configs use.
+
     ``capture_update`` (``auto``, ``True``, ``False``; train YAML ``algorithm.capture_update``): replay the update as
     a CUDA graph. ``auto`` captures where it can: a CUDA device, feed-forward networks, no mixed precision.
     The first update runs eagerly (it creates Adam's state), the second captures. With several GPUs call
     ``release_graph`` before leaving the process group (the training launcher does).
     """
 
-    def __init__(self, *args, capture_update: bool | str = "auto", **kwargs) -> None:
+    def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0, **kwargs) -> None:
         super().__init__(*args, **kwargs)
+        self.bounds_loss_coef = _non_negative(bounds_loss_coef, "train.algorithm.bounds_loss_coef")
+        if self.bounds_loss_coef > 0.0 and not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
+            raise ConfigError("train.algorithm.bounds_loss_coef > 0 needs a Gaussian action distribution "
+                              "(train.actor.distribution_cfg): it bounds the action means")
         unsupported = [key for key, used in (("rnd_cfg", self.rnd), ("symmetry_cfg", self.symmetry)) if used]
         if unsupported:
             raise ConfigError(
@@ -231,6 +262,8 @@ class SyncFreePPO(PPO):
                 surrogate_loss = self._surrogate_loss(log_prob, batch)
                 value_loss = self._value_loss(values, batch)
                 loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
+                if self.bounds_loss_coef > 0.0:
+                    loss = loss + self.bounds_loss_coef * bounds_loss(self.actor.output_distribution_params[0])
 
             self._flat.zero_()
             for param, view in zip(self._params, self._grad_views):
