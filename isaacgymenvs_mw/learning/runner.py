@@ -286,7 +286,7 @@ def evaluate(task, policy, device: str) -> dict:
     # change only at resets), as the task defines them at the start.
     groups = {name: value.clone() for name, value in task.evaluation_groups().items()}
     obs = env.get_observations()
-    max_steps = int(env.max_episode_length) + 2
+    max_steps = task.longest_episode() + 2
     with torch.inference_mode():
         for step in range(max_steps):
             actions = policy(obs.to(device))

@@ -130,6 +130,10 @@ class AllegroHand(VecTask):
             return torch.zeros_like(self.terms["fell"])
         return self.successes >= self.max_consecutive_successes
 
+    def longest_episode(self) -> int:
+        # With maxConsecutiveSuccesses each success restarts the time limit: up to that many limits, plus the last.
+        return int(self.max_episode_length) * (max(self.max_consecutive_successes, 0) + 1)
+
     def compute_reward(self) -> None:
         self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf) * self.k["rewardScale"]
 

@@ -319,6 +319,11 @@ class VecTask(ObservationGroups):
                 f"(ctrl columns, name -> joint: {listing}); set env.numActions: {nu}, or change the drives"
             )
 
+    def longest_episode(self) -> int:
+        """The most policy steps an episode can last: test mode steps this long (plus 2) before it stops waiting.
+        The time limit by default; a task whose successes restart the clock says more."""
+        return int(self.max_episode_length)
+
     def evaluation_groups(self) -> dict[str, torch.Tensor]:
         """Per-env labels by which test mode also reports its results (``per_<name>`` in eval.json), read when the
         evaluation starts. None by default; the terrain tasks group by curriculum level."""
