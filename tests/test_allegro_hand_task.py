@@ -330,3 +330,17 @@ def test_longest_episode_counts_the_time_limits_successes_restart():
     assert env.max_episode_length == 6 and env.longest_episode() == 24
     plain = make("AllegroHand", num_envs=1, seed=0, **CPU, overrides=["task.env.episodeLength_s=0.2"])
     assert plain.longest_episode() == 6
+
+
+def test_the_shipped_randomisation_block_applies_when_turned_on():
+    """task.randomize=True: the YAML's IGE block (cube mass, friction, drive gains, noise, delay) draws per world."""
+    env = make("AllegroHand", num_envs=4, seed=0, **CPU, overrides=["task.task.randomize=True"])
+    env.reset()
+    mass = env.sim.model_field("body_mass")[:, env.sim.body_id("object/cube")]
+    nominal = env.sim.mj_model.body("object/cube").mass[0]
+    assert bool(((mass >= 0.5 * nominal - 1e-6) & (mass <= 1.5 * nominal + 1e-6)).all())
+    assert float(mass.max() - mass.min()) > 1e-3  # drawn per world
+    kp = env.sim.model_field("actuator_gainprm")[:, :16, 0]
+    assert bool(((kp >= 0.75 * 3.0 - 1e-6) & (kp <= 1.5 * 3.0 + 1e-6)).all()) and float(kp.std()) > 1e-3
+    _, rew, _, _ = env.step(torch.zeros(4, 16))
+    assert bool(torch.isfinite(rew).all())
