@@ -78,3 +78,18 @@ def test_tensor_clamp_per_element_bounds():
     # Inverted bounds give the lower one (the max is taken last), as IsaacGym's does.
     inverted = tensor_clamp(torch.tensor([0.0, 5.0, -5.0]), torch.tensor(1.0), torch.tensor(-1.0))
     np.testing.assert_array_equal(inverted.numpy(), [1.0, 1.0, 1.0])
+
+
+def test_quat_mul_and_conjugate_equal_mujoco_c():
+    from isaacgymenvs_mw.utils.torch_utils import quat_conjugate, quat_mul
+
+    rng = np.random.default_rng(8)
+    a, b = rng.normal(size=(50, 4)), rng.normal(size=(50, 4))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    expected_mul, expected_neg = np.zeros((50, 4)), np.zeros((50, 4))
+    for i in range(50):
+        mujoco.mju_mulQuat(expected_mul[i], a[i], b[i])
+        mujoco.mju_negQuat(expected_neg[i], a[i])
+    np.testing.assert_allclose(quat_mul(torch.tensor(a), torch.tensor(b)).numpy(), expected_mul, atol=1e-12)
+    np.testing.assert_allclose(quat_conjugate(torch.tensor(a)).numpy(), expected_neg, atol=1e-12)

@@ -10,15 +10,17 @@ import torch
 
 from isaacgymenvs_mw.utils.rotations import (
     quat_axis,
+    quat_conjugate,
     quat_from_yaw,
+    quat_mul,
     quat_rotate,
     quat_rotate_inverse,
     wrap_to_pi,
     yaw_from_quat,
 )
 
-__all__ = ["quat_axis", "quat_from_yaw", "quat_rotate", "quat_rotate_inverse", "tensor_clamp", "torch_rand_float",
-           "wrap_to_pi", "yaw_from_quat"]
+__all__ = ["quat_axis", "quat_conjugate", "quat_from_yaw", "quat_mul", "quat_rotate", "quat_rotate_inverse",
+           "tensor_clamp", "torch_rand_float", "wrap_to_pi", "yaw_from_quat"]
 
 
 def torch_rand_float(lower: float | torch.Tensor, upper: float | torch.Tensor, shape: tuple[int, ...],
