@@ -23,6 +23,7 @@ from rsl_rl.algorithms import PPO
 from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
 
+from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
@@ -40,16 +41,6 @@ def bounds_loss(mean: torch.Tensor, soft_bound: float = SOFT_BOUND) -> torch.Ten
     above = torch.clamp(mean - soft_bound, min=0.0)
     below = torch.clamp(mean + soft_bound, max=0.0)
     return (above.pow(2) + below.pow(2)).sum(dim=-1).mean()
-
-
-def _non_negative(value: object, key: str) -> float:
-    try:
-        number = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        number = float("nan")
-    if not number >= 0.0:  # NaN too
-        raise ConfigError(f"{key}={value!r} is invalid: give a number >= 0")
-    return number
 
 
 class SyncFreePPO(PPO):
@@ -70,7 +61,7 @@ class SyncFreePPO(PPO):
 
     def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.bounds_loss_coef = _non_negative(bounds_loss_coef, "train.algorithm.bounds_loss_coef")
+        self.bounds_loss_coef = real_number(bounds_loss_coef, "train.algorithm.bounds_loss_coef", low=0)
         if self.bounds_loss_coef > 0.0 and not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
             raise ConfigError("train.algorithm.bounds_loss_coef > 0 needs a Gaussian action distribution "
                               "(train.actor.distribution_cfg): it bounds the action means")

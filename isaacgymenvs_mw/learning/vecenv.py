@@ -56,9 +56,12 @@ class EpisodeStats:
             self._running[f"{group}/{key}"] = value
 
     def pop(self) -> dict[str, float]:
-        count, ret, length, timeouts, nonfinite = self.totals.tolist()
-        out = {"episodes": count, "nonfinite_resets": nonfinite}
-        out.update({key: float(value) for key, value in self._running.items()})
+        # The running values come back with the totals, in the same device-to-host read.
+        names = list(self._running)
+        values = self.totals if not names else torch.cat(
+            (self.totals, torch.stack([self._running[k] for k in names]).double()))
+        count, ret, length, timeouts, nonfinite, *latest = values.tolist()
+        out = {"episodes": count, "nonfinite_resets": nonfinite, **dict(zip(names, latest))}
         if count > 0:
             out.update(
                 mean_episode_reward=ret / count,

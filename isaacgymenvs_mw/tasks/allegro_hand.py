@@ -28,6 +28,7 @@ import torch
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_about_axis, quat_conjugate, quat_mul, quat_rotate, rotation_distance
 
@@ -60,8 +61,9 @@ class AllegroHand(VecTask):
         self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
         self.observation_type = observation_type(env.get("observationType", "full_state"))
         self.asymmetric = bool(env.get("asymmetric_observations", False))
-        check_settings(self.k, int(env.get("maxConsecutiveSuccesses", 0)))
-        self.max_consecutive_successes = int(env.get("maxConsecutiveSuccesses", 0))
+        check_settings(self.k)
+        self.max_consecutive_successes = whole_number(env.get("maxConsecutiveSuccesses", 0),
+                                                      "env.maxConsecutiveSuccesses", 0)
         self.relative_control = bool(env.get("useRelativeControl", False))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
@@ -132,7 +134,7 @@ class AllegroHand(VecTask):
 
     def longest_episode(self) -> int:
         # With maxConsecutiveSuccesses each success restarts the time limit: up to that many limits, plus the last.
-        return int(self.max_episode_length) * (max(self.max_consecutive_successes, 0) + 1)
+        return int(self.max_episode_length) * (self.max_consecutive_successes + 1)
 
     def compute_reward(self) -> None:
         self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf) * self.k["rewardScale"]
@@ -250,7 +252,7 @@ def observation_type(value: object) -> str:
     return str(value)
 
 
-def check_settings(k: dict[str, float], max_consecutive_successes: int) -> None:
+def check_settings(k: dict[str, float]) -> None:
     """One-line errors for settings outside their domain."""
     if k["successTolerance"] <= 0.0:
         raise ConfigError(f"env.successTolerance={k['successTolerance']} is invalid: give an angle > 0 (rad)")
@@ -263,9 +265,6 @@ def check_settings(k: dict[str, float], max_consecutive_successes: int) -> None:
         raise ConfigError(f"env.actionsMovingAverage={k['actionsMovingAverage']} is invalid: give a number in (0, 1]")
     if not 0.0 < k["averFactor"] <= 1.0:
         raise ConfigError(f"env.averFactor={k['averFactor']} is invalid: give a number in (0, 1]")
-    if max_consecutive_successes < 0:
-        raise ConfigError(f"env.maxConsecutiveSuccesses={max_consecutive_successes} is invalid: give 0 (no limit) "
-                          "or more")
 
 
 def random_rotation(n: int, device: torch.device | str) -> torch.Tensor:
