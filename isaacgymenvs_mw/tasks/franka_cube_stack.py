@@ -35,6 +35,17 @@ from isaacgymenvs_mw.tasks.base.franka import FrankaArm
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.tasks.franka_cubes import (
+    CUBE_A_SIZE,
+    TABLE_CENTRE_XY,
+    TABLE_TOP,
+    approach_term,
+    fingertips,
+    grasp_terms,
+    gripper_command,
+    joint_pos_targets_delta,
+    noisy_start_pose,
+)
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw, wrap_to_pi
 
@@ -48,11 +59,7 @@ SHAPING_SCALE_KEYS = {"grasp": "graspRewardScale", "lift_height": "liftHeightRew
 REWARD_SCALE_KEYS = {"dist": "distRewardScale", "lift": "liftRewardScale", "align": "alignRewardScale",
                      "stack": "stackRewardScale"}
 
-CUBE_A_SIZE, CUBE_B_SIZE = 0.05, 0.07  # edge lengths (m), assets/mjcf/cube_5cm.xml and cube_7cm.xml
-TABLE_TOP = -0.1  # table surface height in the robot's base frame (m), assets/mjcf/table.xml
-TABLE_CENTRE_XY = (0.45, 0.0)
-FINGERTIP = 0.0441  # fingertip point: this far along the grasp frame's approach axis from a finger's origin (m), IGE
-OPEN, CLOSED = 0.04, 0.0  # gripper commands: each finger's opening (m)
+CUBE_B_SIZE = 0.07  # edge length (m), assets/mjcf/cube_7cm.xml (A's, CUBE_A_SIZE, is in franka_cubes.py)
 # IGE: A is re-drawn until its xy distance from B is at least 2 (a + b) sqrt(2) / 2 = 0.170 m (twice the sum of the
 # cubes' half-diagonals), so that the cubes never overlap, whatever their yaws.
 MIN_CUBE_DISTANCE = 2.0 * (CUBE_A_SIZE + CUBE_B_SIZE) * math.sqrt(2.0) / 2.0
@@ -105,10 +112,9 @@ class FrankaCubeStack(VecTask):
 
     # ------------------------------------------------------------------ pre-physics
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        grip = torch.where(actions[:, 7] >= 0.0, OPEN, CLOSED)
+        grip = gripper_command(actions[:, 7])
         if self.control_type == "joint_pos":
-            delta = torch.cat((actions[:, :7] * self.arm_step, (grip - self.arm.targets[:, 7]).unsqueeze(1)), dim=1)
-            self.arm.move_targets(delta)
+            self.arm.move_targets(joint_pos_targets_delta(actions, self.arm, self.arm_step))
         elif self.control_type == "joint_tor":
             self.sim.ctrl[:, :7] = actions[:, :7] * self.torque_limit
             self.sim.ctrl[:, 7] = grip
@@ -127,10 +133,7 @@ class FrankaCubeStack(VecTask):
     def refresh_state(self) -> None:
         """The quantities the reward terms and the success test share, once per step."""
         grasp = self.arm.grasp_pos()
-        approach = self.arm.grasp_axes()[:, :, 2]
-        left, right = self.arm.finger_pos()
-        self.terms = cube_stack_terms(self.cube_a.root_pos, self.cube_b.root_pos, grasp,
-                                      left + FINGERTIP * approach, right + FINGERTIP * approach)
+        self.terms = cube_stack_terms(self.cube_a.root_pos, self.cube_b.root_pos, grasp, *fingertips(self.arm))
         self.terms.update(grasp_terms(self.cube_a.root_pos, grasp, self.sim.dof_pos[:, 7]))
 
     def check_success(self) -> torch.Tensor:
@@ -191,9 +194,7 @@ class FrankaCubeStack(VecTask):
         self.extras["episode_metrics"] = {"success": success.sum()}
         self.extras["episode_outcomes"] = {"success": success}
 
-        noise = torch.zeros((n, 9), device=dev)
-        noise[:, :7] = self.k["frankaDofNoise"] * (2.0 * torch.rand((n, 7), device=dev) - 1.0)  # fingers stay
-        dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
+        dof_pos = noisy_start_pose(self.start_dof_pos, self.k["frankaDofNoise"], self.arm, n)
         self.sim.reset_worlds(mask)
         self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
         if self.control_type in TORQUE_CONTROL:  # the arm's ctrl columns are torques: none in a new episode
@@ -240,9 +241,7 @@ def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Te
     ``align`` and ``stacked`` (bool). The reward is ``compute_cube_stack_reward`` of them."""
     height_a = cube_a[:, 2] - table_top  # A's centre above the table
     d = torch.linalg.norm(cube_a - grasp, dim=-1)
-    d_left = torch.linalg.norm(cube_a - tip_left, dim=-1)
-    d_right = torch.linalg.norm(cube_a - tip_right, dim=-1)
-    dist = 1.0 - torch.tanh(10.0 * (d + d_left + d_right) / 3.0)
+    dist = approach_term(cube_a, grasp, tip_left, tip_right)
     lifted = ((height_a - CUBE_A_SIZE) > 0.04).float()
     offset = torch.zeros_like(cube_a)
     offset[:, 2] = (CUBE_A_SIZE + CUBE_B_SIZE) / 2.0  # A's centre above B's when stacked
@@ -253,16 +252,6 @@ def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Te
     on_top = torch.abs(height_a - CUBE_B_SIZE - CUBE_A_SIZE / 2.0) < 0.02
     released = d > 0.04
     return {"dist": dist, "lifted": lifted, "align": align, "stacked": aligned_xy & on_top & released}
-
-
-def grasp_terms(cube_a: torch.Tensor, grasp: torch.Tensor, finger_opening: torch.Tensor,
-                table_top: float = TABLE_TOP) -> dict[str, torch.Tensor]:
-    """This project's shaping quantities: ``held`` (float 0/1: A's centre within 3 cm of the grasp point and each
-    finger opened less than 3 cm, i.e. closed on A's 2.5 cm half-width) and ``lift_height`` (while held, A's centre
-    above its resting height as a fraction of the 6.5 cm rise that makes it ``lifted``, clamped to 0 ... 1)."""
-    held = ((torch.linalg.norm(cube_a - grasp, dim=-1) < 0.03) & (finger_opening < 0.03)).float()
-    rise = (cube_a[:, 2] - table_top - CUBE_A_SIZE / 2.0) / (CUBE_A_SIZE + 0.04 - CUBE_A_SIZE / 2.0)
-    return {"held": held, "lift_height": held * torch.clamp(rise, 0.0, 1.0)}
 
 
 def compute_cube_stack_reward(terms: dict[str, torch.Tensor], dist_scale: float = 0.1, lift_scale: float = 1.5,

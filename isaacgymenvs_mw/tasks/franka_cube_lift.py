@@ -1,0 +1,177 @@
+"""FrankaCubeLift and FrankaCubeLiftDepth (issue 33): the Panda grasps the 5 cm cube and lifts it.
+
+The scene (``cfg/task/FrankaCubeLift.yaml``) is FrankaCubeStack's without cube B: the Panda at the world origin (its
+base frame), the table top 0.1 m below it, and cube A (``env.assets.cubeA``) placed at every reset with its xy
+uniform within ±``startPositionNoise`` of the table centre (0.45, 0) and its yaw within ±``startRotationNoise``,
+resting on the table. The cube counts as lifted when its centre is ``liftHeight`` above where it rests; held there
+(between the closed finger pads) is a success: the episode ends and the learner bootstraps it like a time-out
+(VecTask.check_success).
+
+Control: ``joint_pos`` only (``env.controlType``): each step the 7 arm servo targets move by ``actionScale`` x control
+dt x a, clamped to the joint ranges; the last action opens (>= 0) or closes (< 0) the gripper, as FrankaCubeStack.
+
+FrankaCubeLift observes the cube's pose. FrankaCubeLiftDepth is the same problem, but its policy does not observe
+the cube: it sees a depth image of the table from a fixed camera (``env.cameras.overhead``) and its own arm; the
+critic reads the cube's pose too (asymmetric actor-critic, the train YAML's ``obs_groups``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from isaacgymenvs_mw.tasks import franka_cubes as cubes
+from isaacgymenvs_mw.tasks.base.franka import FrankaArm
+from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
+from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import real_number
+from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.rotations import quat_from_yaw
+
+REST_HEIGHT = cubes.TABLE_TOP + cubes.CUBE_A_SIZE / 2.0  # the cube's centre when it rests on the table (m)
+# env keys of the task YAML that are plain numbers, and whether they must be > 0 (else >= 0)
+_NUMBER_KEYS = {"actionScale": True, "frankaDofNoise": False, "startPositionNoise": False,
+                "startRotationNoise": False, "liftHeight": True}
+# reward term -> the env key of its scale
+REWARD_SCALE_KEYS = {"dist": "distRewardScale", "grasp": "graspRewardScale",
+                     "lift_height": "liftHeightRewardScale", "lift": "liftRewardScale"}
+DOF_VEL_SCALE = 0.1  # joint speeds (up to about 2.6 rad/s) observed x 0.1, as IGE's Franka tasks (dof_vel_scale)
+CAMERA = "overhead"  # FrankaCubeLiftDepth's env.cameras entry
+
+
+class FrankaCubeLift(VecTask):
+    """Observation: the arm (joints, speeds, servo targets, grasp point) and the cube's pose. Actions (8): 7 arm
+    joint-target changes and the gripper."""
+
+    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
+                 virtual_screen_capture=False, force_render=False):
+        self.cfg = cfg
+        env = cfg["env"]
+        name = type(self).__name__
+        missing = [k for k in (*_NUMBER_KEYS, *REWARD_SCALE_KEYS.values(), "startDofPos") if k not in env]
+        if missing:
+            raise ConfigError(f"{name}: the task YAML's env section lacks {missing}")
+        if env.get("controlType", "joint_pos") != "joint_pos":
+            raise ConfigError(f"env.controlType={env.get('controlType')!r} is invalid: {name} supports only "
+                              "'joint_pos'")
+        self.k = {key: real_number(env[key], f"env.{key}", 0.0, low_open=positive)
+                  for key, positive in _NUMBER_KEYS.items()}
+        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
+                         virtual_screen_capture, force_render)
+        self.arm = FrankaArm(self.sim, name)
+        self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
+        self.cube = self.sim.asset("cubeA")
+        self.arm_step = self.k["actionScale"] * self.control_dt  # rad per step at action 1
+        self.table_centre = torch.tensor([*cubes.TABLE_CENTRE_XY], device=self.device)
+        scales = {t: real_number(env[k], f"env.{k}") for t, k in REWARD_SCALE_KEYS.items()}
+        self.rewards = RewardTerms(self, scales, self.num_envs, self.device, key="env")
+        self.terms: dict[str, torch.Tensor] = {}
+        self.build_observation_layouts()
+
+    # ------------------------------------------------------------------ pre-physics
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        self.arm.move_targets(cubes.joint_pos_targets_delta(actions, self.arm, self.arm_step))
+
+    # ------------------------------------------------------------------ post-physics
+    def refresh_state(self) -> None:
+        """The quantities the reward terms and the success test share, once per step."""
+        grasp = self.arm.grasp_pos()
+        self.terms = cube_lift_terms(self.cube.root_pos, grasp, *cubes.fingertips(self.arm), self.sim.dof_pos[:, 7],
+                                     self.k["liftHeight"])
+
+    def check_success(self) -> torch.Tensor:
+        # held at or above the lift height: the episode ends, bootstrapped (see VecTask.check_success)
+        return self.terms["success"]
+
+    def compute_reward(self) -> None:
+        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf)
+
+    def _reward_dist(self) -> torch.Tensor:
+        # approach (IGE): 1 - tanh(10 x mean distance of the cube to the grasp point and the fingertips)
+        return self.terms["dist"]
+
+    def _reward_grasp(self) -> torch.Tensor:
+        # shaping: the cube between the finger pads with the gripper closed on it
+        return self.terms["held"]
+
+    def _reward_lift_height(self) -> torch.Tensor:
+        # shaping: while held, the cube's rise from the table toward liftHeight, 0 ... 1
+        return self.terms["lift_height"]
+
+    def _reward_lift(self) -> torch.Tensor:
+        # the cube's centre at least liftHeight above where it rests, held or not
+        return self.terms["lifted"]
+
+    # ------------------------------------------------------------------ observations
+    def proprioception_terms(self) -> list[ObsTerm]:
+        """What the arm knows of itself (29 values)."""
+        return [ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos),                # rad; fingers m
+                ObsTerm("dof_vel", 9, scale=DOF_VEL_SCALE, compute=lambda: self.sim.dof_vel),  # rad/s; m/s
+                # the servo targets the actions move (rad; gripper m): state the next step's motion depends on
+                ObsTerm("dof_targets", 8, compute=lambda: self.arm.targets),
+                ObsTerm("grasp_pos", 3, compute=self.arm.grasp_pos)]                   # m, between the pads
+
+    def cube_terms(self) -> list[ObsTerm]:
+        """The cube's pose (10 values)."""
+        return [ObsTerm("cube_pos", 3, compute=lambda: self.cube.root_pos),           # m, robot base frame
+                ObsTerm("cube_quat", 4, compute=lambda: self.cube.root_quat),         # (w, x, y, z)
+                ObsTerm("cube_to_grasp", 3,
+                        compute=lambda: self.arm.grasp_pos() - self.cube.root_pos)]   # m, grasp point - cube
+
+    def observation_terms(self) -> list[ObsTerm]:
+        return self.proprioception_terms() + self.cube_terms()
+
+    # ------------------------------------------------------------------ reset
+    def reset_idx(self, env_ids: torch.Tensor) -> None:
+        mask = self.env_mask(env_ids)
+        n = self.num_envs
+        # Success: the episode ended with the cube held at the lift height (a time-out is not one). Training logs
+        # the rate over the episodes that end (Episode/success); test mode reports each env's first episode.
+        success = (self.success_buf & mask).float()
+        self.extras["episode_metrics"] = {"success": success.sum()}
+        self.extras["episode_outcomes"] = {"success": success}
+
+        self.sim.reset_worlds(mask)
+        self.arm.reset(mask, cubes.noisy_start_pose(self.start_dof_pos, self.k["frankaDofNoise"], self.arm, n))
+        pos, quat = sample_cube(n, self.table_centre, self.k["startPositionNoise"], self.k["startRotationNoise"])
+        zero = torch.zeros_like(pos)
+        # The observation reads the grasp site and the cube: poses recomputed once, after both writes.
+        self.sim.write_state(mask, root_pos=pos, root_quat=quat, root_lin_vel=zero, root_ang_vel=zero,
+                             asset="cubeA", refresh=True)
+        self.progress_buf.masked_fill_(mask, 0)
+
+
+class FrankaCubeLiftDepth(FrankaCubeLift):
+    """FrankaCubeLift whose policy finds the cube in a depth image: it observes the arm and camera ``overhead``'s
+    depth (the "camera" group); the cube's pose goes to the critic's state."""
+
+    def observation_terms(self) -> list[ObsTerm]:
+        return self.proprioception_terms()
+
+    def state_terms(self) -> list[ObsTerm]:
+        return self.cube_terms()
+
+    def image_terms(self) -> list[ImageTerm]:
+        return [ImageTerm("depth", camera=CAMERA, output="depth")]
+
+
+def sample_cube(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Start poses of the cube in ``n`` worlds: position (n, 3) with xy uniform within ±``xy_noise`` of ``centre``,
+    resting on the table; orientation (n, 4) a yaw uniform within ±``yaw_noise``."""
+    dev = centre.device
+    xy = centre + xy_noise * (2.0 * torch.rand((n, 2), device=dev) - 1.0)
+    pos = torch.cat((xy, torch.full((n, 1), REST_HEIGHT, device=dev)), dim=1)
+    return pos, quat_from_yaw(yaw_noise * (2.0 * torch.rand(n, device=dev) - 1.0))
+
+
+def cube_lift_terms(cube: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Tensor, tip_right: torch.Tensor,
+                    finger_opening: torch.Tensor, lift_height: float) -> dict[str, torch.Tensor]:
+    """The reward and success quantities from positions (N, 3) and the finger opening (N,): ``dist`` (IGE's
+    approach), ``held`` and ``lift_height`` (``grasp_terms`` with the rise to ``lift_height``), ``lifted`` (float
+    0/1: the cube's centre at least ``lift_height`` above where it rests) and ``success`` (bool: held and lifted)."""
+    terms = cubes.grasp_terms(cube, grasp, finger_opening, full_rise=lift_height)
+    terms["dist"] = cubes.approach_term(cube, grasp, tip_left, tip_right)
+    lifted = cube[:, 2] - REST_HEIGHT >= lift_height
+    terms["lifted"] = lifted.float()
+    terms["success"] = lifted & (terms["held"] > 0.0)
+    return terms
