@@ -54,6 +54,29 @@ def test_the_camera_group_is_the_rendered_image_with_past_frames_that_shift_and_
     assert (previous[:, 0:3] != previous[:, 3:6]).any()  # the images do change from step to step
 
 
+def test_stacking_selected_terms_keeps_only_their_channels_of_past_frames():
+    """env.history.camera.terms: the current frame keeps every term; past frames keep the named terms' channels, and
+    a step's observation is still intact after the next step (the learner stores it then)."""
+    task = make(overrides=("task.env.imageOutputs=[rgb,depth]", "task.env.cameras.front.outputs=[rgb,depth]",
+                           "task.env.cameras.front.depthFar=6.0", "+task.env.history.camera.terms=[depth]"))
+    first = task.reset()["camera"]
+    assert first.shape == (4, 4 + 2 * 1, 16, 32)
+    depth = lambda: torch.round(task.sim.camera("front").depth * 255 / 6.0).to(torch.uint8)  # noqa: E731
+    assert torch.equal(first[:, 4:5], depth()) and torch.equal(first[:, 5:6], depth())
+    previous = first
+    for _ in range(30):
+        kept = previous.clone()
+        obs, _, reset, _ = task.step(torch.ones(4, 1))
+        current, new = obs["camera"], reset.bool()
+        assert torch.equal(previous, kept)  # the step did not overwrite the observation it followed
+        assert torch.equal(current[:, 0:3], task.sim.camera("front").rgb) and torch.equal(current[:, 3:4], depth())
+        assert torch.equal(current[~new][:, 4:5], previous[~new][:, 3:4])  # last step's depth, one slot back
+        assert torch.equal(current[~new][:, 5:6], previous[~new][:, 4:5])
+        assert torch.equal(current[new][:, 4:6], current[new][:, 3:4].expand(-1, 2, -1, -1))
+        previous = current
+    assert (previous[:, 3:4] != previous[:, 4:5]).any()
+
+
 def test_depth_terms_are_depth_over_depth_far_in_bytes():
     task = make("CartpoleCameraDepth", overrides=("task.env.history.camera.length=1",))
     obs = task.reset()["camera"]
@@ -149,7 +172,7 @@ def test_videos_show_what_the_policy_sees_beside_the_view(tmp_path):
     seen = []
     for _ in range(3):
         task.step(torch.ones(4, 1))
-        seen.append(task.images.image(0).numpy())
+        seen.append(task.camera_picture(0).numpy())
     task.close()
     frames, _ = read_video(tmp_path / "videos" / "video_1.mp4")
     scale = 480 // 16

@@ -21,4 +21,8 @@ def set_seed(seed: int, torch_deterministic: bool = False, rank: int = 0) -> int
         torch.backends.cudnn.benchmark = False
         torch.backends.cudnn.deterministic = True
         torch.use_deterministic_algorithms(True)
+    else:
+        # cuDNN times its convolution algorithms once per input shape and keeps the fastest: the image models'
+        # shapes never change within a run. (Deterministic mode cannot: the fastest one may not be reproducible.)
+        torch.backends.cudnn.benchmark = True
     return seed

@@ -18,9 +18,11 @@ history. An env whose ``reset_buf`` is set returned the first frame of a new epi
 filled with that frame (nothing from the previous episode leaks in). The frames live on the device in a shift
 buffer, updated with whole-tensor ops only (no host syncs, capturable, compilable).
 
-Images (the ``camera`` group, (C, H, W) uint8 frames) are stacked the same way, each frame flattened: the stacked
-input is (C + (length - 1) * C_sel, H, W), the current frame's channels first, then the selected terms' channels of
-each past frame, newest first.
+Images (the ``camera`` group, (C, H, W) uint8 frames) are stacked the same way along channels (``ImageStack``): the
+stacked input is (C + (length - 1) * C_sel, H, W), the current frame's channels first, then the selected terms'
+channels of each past frame, newest first. Image stacks are large (a 64x64 RGB stack of 3 frames is 36 KB per env),
+so they are not shifted in place and copied out: two stack buffers take turns, each step writing the new stack into
+one from the other (the new frame, and the older frames one slot back), and the learner gets that buffer itself.
 """
 
 from __future__ import annotations
@@ -133,3 +135,91 @@ class ObsHistory:
         self.out[:, :self.frame_size] = frame
         self.out[:, self.frame_size:] = self.frames[:, 1:].reshape(self.out.shape[0], -1)
         return self.out
+
+
+class ImageStack:
+    """The "camera" group: each env's newest frame of the image terms and, with ``env.history.camera``, the frames
+    before it, (num_envs, C + (length - 1) * C_sel, H, W) uint8 on the device.
+
+    Two buffers take turns: env step ``k`` (0-based) writes buffer ``k % 2`` from buffer ``(k - 1) % 2``, so a step
+    moves each byte of the stack about twice (read the older frames, write them one slot back, plus the new frame)
+    and hands its buffer to the learner without a copy. That buffer is rewritten two steps later: a learner that
+    keeps an observation longer than one step copies it (rsl-rl-lib copies each into its rollout storage at the
+    next step). Which buffer a step writes is a pure function of the step number, so a captured graph per buffer
+    replays with no host-side state to update.
+
+    Args:
+        group: the image terms (their cameras, channels and size).
+        spec: ``env.history.camera``, or None: the newest frame only.
+        num_envs, device: batch and device of the buffers.
+    """
+
+    def __init__(self, group, spec: HistorySpec | None, num_envs: int, device: torch.device | str) -> None:
+        self.group = group
+        self.spec = spec
+        self.length = spec.length if spec is not None else 1
+        self.channels, height, width = group.shape
+        if spec is None or spec.terms is None:
+            self.selected = torch.arange(self.channels)
+        else:  # whole terms: their channel blocks (the layout checks the names and counts H * W columns per channel)
+            columns = group.layout.columns(list(spec.terms), f"{spec.key}.terms")
+            self.selected = torch.unique(columns // (height * width))
+        self.all_channels = self.selected.numel() == self.channels  # past frames keep every channel: one slice
+        self.selected = self.selected.to(device)
+        past = (self.length - 1) * int(self.selected.numel())
+        self.shape = (self.channels + past, height, width)
+        self.buffers = tuple(torch.zeros((num_envs, *self.shape), dtype=torch.uint8, device=device)
+                             for _ in range(2))
+
+    def newest(self, steps_taken: int) -> torch.Tensor:
+        """The stack after ``steps_taken`` env steps (before the first: what ``restart`` wrote)."""
+        return self.buffers[(steps_taken - 1) % 2]
+
+    def frame(self, steps_taken: int) -> torch.Tensor:
+        """The newest frame alone, (num_envs, C, H, W), after ``steps_taken`` env steps."""
+        return self.newest(steps_taken)[:, :self.channels]
+
+    def push(self, new_episode: torch.Tensor, step: int) -> torch.Tensor:
+        """Env step ``step``: the cameras' images become the newest frame, the older frames move back one slot;
+        envs flagged in ``new_episode`` forget their past (every past frame is the new one). Returns the stack."""
+        into, older = self.buffers[step % 2], self.buffers[(step - 1) % 2]
+        frame = self.group.compute(into[:, :self.channels])
+        if self.length > 1:
+            self._fill_past(into, frame, new_episode, older)
+        return into
+
+    def restart(self, mask: torch.Tensor, steps_taken: int) -> torch.Tensor:
+        """The cameras' images become the newest frame, in place (no shift); the past frames of the masked envs
+        become copies of it (their episode starts). Returns the stack."""
+        stack = self.newest(steps_taken)
+        frame = self.group.compute(stack[:, :self.channels])
+        if self.length > 1:
+            self._fill_past(stack, frame, mask, None)
+        return stack
+
+    def _fill_past(self, into: torch.Tensor, frame: torch.Tensor, forget: torch.Tensor,
+                   older: torch.Tensor | None) -> None:
+        """``into``'s past frames: ``older``'s frames one slot back (``older`` None: ``into``'s own, unshifted),
+        and the selected channels of ``frame`` in every slot of the envs in ``forget``."""
+        n, c = frame.shape[0], self.channels
+        h, w = self.shape[1:]
+        s = int(self.selected.numel())
+        past = into[:, c:].view(n, self.length - 1, s, h, w)
+        current = frame if self.all_channels else frame.index_select(1, self.selected)
+        forget = forget.view(n, 1, 1, 1, 1)
+        if older is None:
+            torch.where(forget, current.unsqueeze(1), past, out=past)  # elementwise in place: each byte reads itself
+        elif self.all_channels:
+            torch.where(forget, current.unsqueeze(1), older[:, :-c].view_as(past), out=past)
+        else:  # the previous frame's selected channels, then its past frames but the oldest
+            previous = older[:, :c].index_select(1, self.selected).unsqueeze(1)
+            torch.where(forget, current.unsqueeze(1), previous, out=past[:, :1])
+            if self.length > 2:
+                torch.where(forget, current.unsqueeze(1), older[:, c:c + (self.length - 2) * s].view_as(past[:, 1:]),
+                            out=past[:, 1:])
+
+    def describe(self) -> dict:
+        """What an exported policy needs to rebuild the stacked input on a robot."""
+        return {"length": self.length, "terms": list(self.spec.terms) if self.spec and self.spec.terms else None,
+                "channels": self.selected.tolist(), "frame_channels": self.channels, "size": self.shape[0],
+                "order": "current frame (all channels), then the selected channels of past frames, newest first"}

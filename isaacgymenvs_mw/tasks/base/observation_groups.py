@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.tasks.base.history import ObsHistory
+from isaacgymenvs_mw.tasks.base.history import ImageStack, ObsHistory
 from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ImageTerm, ObsLayout, ObsTerm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -61,7 +61,7 @@ class ObservationGroups:
                              "policy observation, history included (env.history.policy)")
         terms = self.image_terms()
         if terms and self.images is None:
-            self.images = ImageGroup(terms, self.sim, self.num_envs, self.device)
+            self.images = ImageGroup(terms, self.sim)
             # Each step then renders after the resets and reads the images (VecTask.step).
             self.execution.sensors = (self._render_cameras, self._observe_step_images)
         if "camera" in self.history_specs and self.images is None:
@@ -93,31 +93,22 @@ class ObservationGroups:
         if spec is not None and self.state_history is None:
             self.state_history = ObsHistory(spec, self.num_states, self.state_layout, n, dev)
             self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.state_history.size,), dtype=np.float32)
-        spec = self.history_specs.get("camera")
-        if spec is not None and self.image_history is None:
-            size = self.images.layout.size
-            self.image_history = ObsHistory(spec, size, self.images.layout, n, dev, dtype=torch.uint8)
+        if self.images is not None and self.image_stack is None:
+            self.image_stack = ImageStack(self.images, self.history_specs.get("camera"), n, dev)
 
     @property
     def image_shape(self) -> tuple[int, int, int] | None:
         """(C, H, W) of the "camera" group as the learner sees it (frames stacked); None without image terms."""
         if self.images is None:
             return None
-        channels, height, width = self.images.shape
-        if self.image_history is not None:
-            channels = self.image_history.size // (height * width)
-        return channels, height, width
+        if self.image_stack is None:
+            self._build_history()
+        return self.image_stack.shape
 
-    def observe_images(self, new_episode: torch.Tensor, reset: bool = False) -> torch.Tensor:
-        """The "camera" group from the cameras' current images: this frame, and with ``env.history.camera`` the
-        past frames (``new_episode`` envs start afresh; ``reset``: fill their past without a shift). Device work
-        only; the returned buffer is rewritten by the next call."""
-        frame = self.images.compute()
-        if self.image_history is None:
-            return frame
-        flat = frame.view(self.num_envs, -1)
-        stacked = self.image_history.reset(flat, new_episode) if reset else self.image_history.push(flat, new_episode)
-        return stacked.view(self.num_envs, *self.image_shape)
+    def camera_picture(self, world: int = 0) -> torch.Tensor:
+        """World ``world``'s newest image observation as an (H, W * terms, 3) uint8 RGB picture (terms side by
+        side, depth as grey): what videos show beside the usual view."""
+        return self.images.picture(self.image_stack.frame(self.execution.steps), world)
 
     def compute_observations(self) -> None:
         """Fill ``obs_buf`` (and ``states_buf``) from the layouts, in term order: each term's ``compute()`` times its
@@ -167,8 +158,8 @@ class ObservationGroups:
         if self.images is not None:
             info["camera"] = {"shape": list(self.image_shape), "frame_shape": list(self.images.shape),
                               "dtype": "uint8", "terms": self.images.describe(),
-                              "history": {k: v for k, v in self.image_history.describe().items() if k != "columns"}
-                              if self.image_history is not None else {"length": 1}}  # columns: every pixel
+                              "history": self.image_stack.describe() if self.image_stack.length > 1
+                              else {"length": 1}}
         return info
 
     def get_state(self) -> torch.Tensor:
@@ -190,7 +181,8 @@ class ObservationGroups:
             self.obs_dict["states"] = states.to(self.rl_device, copy=True)
         if self.images is not None:
             self.sim.render_cameras()
-            self.obs_dict["camera"] = self.observe_images(new_episode, reset=True).to(self.rl_device, copy=True)
+            self.image_stack.restart(new_episode, self.execution.steps)
+            self.obs_dict["camera"] = self.image_stack.newest(self.execution.steps).to(self.rl_device)
         return self.obs_dict
 
     def _compute_checked_observations(self) -> None:

@@ -113,7 +113,7 @@ class ImageGroup:
     (``learning/models.py``). Every term must come from a camera of the same width and height.
     """
 
-    def __init__(self, terms: Sequence[ImageTerm], sim, num_envs: int, device: torch.device | str) -> None:
+    def __init__(self, terms: Sequence[ImageTerm], sim) -> None:
         names = [t.name for t in terms]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
@@ -143,26 +143,26 @@ class ImageGroup:
         self.shape = (sum(t.channels for t in terms), height, width)
         # The flat view of a frame, term by term: what env.history.camera stacks (its terms select blocks).
         self.layout = ObsLayout([ObsTerm(t.name, t.channels * height * width) for t in terms])
-        self.buf = torch.zeros((num_envs, *self.shape), dtype=torch.uint8, device=device)
 
-    def compute(self) -> torch.Tensor:
-        """Fill ``buf`` from the cameras' current images (device work only); returns it."""
+    def compute(self, out: torch.Tensor) -> torch.Tensor:
+        """Write the cameras' current images into ``out`` ((num_envs, C, H, W) uint8, e.g. the newest slot of a
+        frame stack; device work only); returns it."""
         start = 0
         for term, view in zip(self.terms, self.sources):
-            part = self.buf[:, start:start + term.channels]
+            part = out[:, start:start + term.channels]
             if term.output == "rgb":
                 part.copy_(view.rgb)
             else:
                 part.copy_(torch.round(view.depth * (255.0 / view.depth_far)).clamp_(0.0, 255.0))
             start += term.channels
-        return self.buf
+        return out
 
-    def image(self, world: int = 0) -> torch.Tensor:
-        """World ``world``'s current frame as one (H, W * terms, 3) uint8 RGB picture, terms side by side (depth
-        as grey), for people: videos of what the policy sees."""
+    def picture(self, frame: torch.Tensor, world: int = 0) -> torch.Tensor:
+        """World ``world``'s image in ``frame`` (num_envs, C, H, W) as one (H, W * terms, 3) uint8 RGB picture,
+        terms side by side (depth as grey), for people: videos of what the policy sees."""
         tiles, start = [], 0
         for term in self.terms:
-            part = self.buf[world, start:start + term.channels]
+            part = frame[world, start:start + term.channels]
             tiles.append(part.expand(3, -1, -1) if term.channels == 1 else part)
             start += term.channels
         return torch.cat(tiles, dim=2).permute(1, 2, 0)

@@ -8,8 +8,9 @@ were what a step cost beyond the physics. So, on CUDA:
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
 Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
 A task with cameras adds two phases after those (``sensors``): the render (Warp: its own graph, replayed by the
-simulator) and the image observation (torch: a third captured graph), so that images show the state after the
-resets.
+simulator) and the image observation (torch), so that images show the state after the resets. The image
+observation writes one of two frame-stack buffers, chosen by the step number's parity (``ImageStack``), so it is
+captured twice, once per buffer, and each step replays the one for its parity.
 
 Start-up: compiling the post-physics step (Inductor and Triton code generation, about 19 s on an H200 host with cold
 caches) and compiling Warp's kernel modules (about 27 s, on a pool of threads) are both CPU work, and neither needs
@@ -60,9 +61,10 @@ class StepExecution:
         # Where the step was compiled: "alongside Warp's kernels", "first step" (None: not yet, or not compiled).
         self.compiled_at: str | None = None
         self.graph_actions = torch.zeros(action_shape, device=device)  # a captured graph reads its input here
-        self.graphs: tuple[torch.cuda.CUDAGraph, ...] | None = None
-        # (render, observe) when the task observes camera images: run after ``after`` (VecTask sets it).
-        self.sensors: tuple[Callable[[], None], Callable[[], None]] | None = None
+        self.graphs: tuple[torch.cuda.CUDAGraph, ...] | None = None  # before, after[, observe even, odd]
+        # (render, observe) when the task observes camera images: run after ``after`` (VecTask sets it); observe
+        # takes the number of the step it observes (0-based).
+        self.sensors: tuple[Callable[[], None], Callable[[int], None]] | None = None
         self.device = device
         self.steps = 0
 
@@ -89,14 +91,14 @@ class StepExecution:
             after.replay()
             if self.sensors is not None:
                 self.sensors[0]()
-                self.graphs[2].replay()
+                self.graphs[2 + self.steps % 2].replay()
         else:
             self.before(actions)
             self.physics()
             self.after()
             if self.sensors is not None:
                 self.sensors[0]()
-                self.sensors[1]()
+                self.sensors[1](self.steps)
         self.steps += 1
 
     def _first_compiled_call(self) -> None:
@@ -133,17 +135,20 @@ class StepExecution:
                 self.before(self.graph_actions)
             with torch.cuda.graph(after, pool=before.pool()):
                 self.after()
-            if self.sensors is not None:
-                observe = torch.cuda.CUDAGraph()
-                with torch.cuda.graph(observe, pool=before.pool()):
-                    self.sensors[1]()
+            observe = []  # graphs[2 + parity]: the image observation of a step of that parity
+            for step in ((self.steps, self.steps + 1) if self.sensors is not None else ()):
+                observe.append(torch.cuda.CUDAGraph())
+                with torch.cuda.graph(observe[-1], pool=before.pool()):
+                    self.sensors[1](step)
+            if self.steps % 2:
+                observe.reverse()
         except Exception as err:
             raise RuntimeError(
                 f"sim.captureStep: {self.name}'s step could not be captured as CUDA graphs ({err}). A task whose "
                 "post_physics_step syncs with the host or launches Warp kernels cannot be captured: run with "
                 "+task.sim.captureStep=False"
             ) from err
-        self.graphs = (before, after) if self.sensors is None else (before, after, observe)
+        self.graphs = (before, after, *observe)
 
 
 class _DryRun(Exception):

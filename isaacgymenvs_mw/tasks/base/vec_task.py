@@ -42,7 +42,7 @@ import torch
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.env_keys import episode_length, positive, require_int, warn_unused_ige_keys
-from isaacgymenvs_mw.tasks.base.history import ObsHistory, parse_history
+from isaacgymenvs_mw.tasks.base.history import ImageStack, ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observation_groups import ObservationGroups
 from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ObsLayout
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
@@ -96,7 +96,7 @@ class VecTask(ObservationGroups):
         self.state_history: ObsHistory | None = None
         # Image observation (image_terms(): the "camera" group), rendered every renderInterval policy steps.
         self.images: ImageGroup | None = None
-        self.image_history: ObsHistory | None = None
+        self.image_stack: ImageStack | None = None  # the "camera" group: newest frame and env.history.camera
         self.render_interval = require_int(env, "renderInterval", minimum=1, default=1)
 
         self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
@@ -194,7 +194,6 @@ class VecTask(ObservationGroups):
         # Step outputs live in fixed buffers so that a captured step graph can write them.
         self._obs_out = torch.zeros_like(self.obs_buf)
         self._states_out = torch.zeros_like(self.states_buf)
-        self._images_out: torch.Tensor | None = None  # the "camera" group a step returns (image_terms())
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
         self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
@@ -354,8 +353,8 @@ class VecTask(ObservationGroups):
         if self.num_states > 0:
             states = self._states_out if self.state_history is None else self.state_history.out
             self.obs_dict["states"] = states.to(self.rl_device, copy=True)
-        if self.images is not None:
-            self.obs_dict["camera"] = self._images_out.to(self.rl_device, copy=True)
+        if self.images is not None:  # no copy: the buffer this step wrote stays as it is for one more step
+            self.obs_dict["camera"] = self.image_stack.newest(self.execution.steps).to(self.rl_device)
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
@@ -419,9 +418,9 @@ class VecTask(ObservationGroups):
         if self.control_steps % self.render_interval == 0:
             self.sim.render_cameras()
 
-    def _observe_step_images(self) -> None:
-        """The "camera" group of this step (torch; captured as its own graph on CUDA)."""
-        self._images_out = self.observe_images(self.reset_buf != 0)
+    def _observe_step_images(self, step: int) -> None:
+        """The "camera" group of env step ``step`` (torch; captured as a graph per stack buffer on CUDA)."""
+        self.image_stack.push(self.reset_buf != 0, step)
 
     @property
     def step_execution(self) -> str:
