@@ -257,6 +257,25 @@ def test_kernel_modules_compile_while_the_step_compiles_and_errors_come_back(mon
     assert sorted(map(id, compiled)) == sorted(map(id, modules)) and not waited_out
 
 
+def test_a_kernel_load_compiles_in_the_background_until_waited_for(monkeypatch, three_modules):
+    """KernelLoad (what the simulator starts on CUDA at construction) returns with its modules compiling on other
+    threads; ``wait`` runs ``alongside`` and then returns once they are done."""
+    entry_points, modules = three_modules
+    started, release, compiled = threading.Event(), threading.Event(), []
+
+    def force_load(device=None, modules=None, block_dim=None, max_workers=None):
+        started.set()
+        assert threading.current_thread() is not threading.main_thread()
+        assert release.wait(timeout=60)
+        compiled.append(modules[0])
+
+    monkeypatch.setattr(wp, "force_load", force_load)
+    load = kernels.KernelLoad(wp.get_device("cpu"), entry_points, max_workers=3)
+    assert started.wait(timeout=60) and compiled == []  # compiling, and this thread is free
+    assert load.wait(alongside=release.set) == 3
+    assert sorted(map(id, compiled)) == sorted(map(id, modules))
+
+
 def test_a_module_that_fails_to_compile_fails_the_load_in_the_calling_thread(monkeypatch, three_modules):
     entry_points, modules = three_modules
 

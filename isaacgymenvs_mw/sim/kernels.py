@@ -5,9 +5,10 @@ time one of its kernels launches: one module after another, dozens of them. ``lo
 simulator's entry points once with launches recorded rather than executed, then compiles and loads the recorded
 modules on a pool of threads (what ``wp.force_load(max_workers=...)`` does), printing one progress line with an
 estimate of the time left and one line when done. Warp's own line per module is shown only with ``verbose``.
-The calling thread is free while the pool works: ``alongside`` runs there meanwhile (VecTask compiles its
-post-physics step with torch.compile, CPU work of the same size, so that a cold start pays the longer of the two
-rather than their sum).
+The calling thread is free while the pool works: ``KernelLoad`` starts the pool in the background (the simulator
+does so as soon as its model and data exist, so that the task builds the rest of itself meanwhile), and
+``alongside`` runs in the waiting thread (VecTask compiles its post-physics step with torch.compile, CPU work of the
+same size, so that a cold start pays the longest of the three rather than their sum).
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ import math
 import os
 import sys
 import tempfile
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from typing import Callable, Sequence
 
 import warp as wp
@@ -28,6 +30,9 @@ _PROGRESS_EVERY_S = 5.0  # a progress line at most this often while modules comp
 
 _state = {"verbose": False}
 _loaded: set[tuple[object, object, object]] = set()  # (module, device, block_dim) loaded in this process
+# One load compiles at a time: two simulators built one after the other must not compile the same module at once
+# (Warp builds a module in a folder named after it); the second finds the first's modules loaded.
+_compile_lock = threading.Lock()
 
 
 def set_verbose(verbose: bool) -> None:
@@ -138,47 +143,115 @@ def load_kernels(device: wp.context.Device, entry_points: Sequence[Callable[[], 
     dry run failed and nothing was recorded. Anything the recording misses is still compiled on first use, as
     Warp always does, so this can only save time.
     """
-    try:
-        recorded = _record_launches(entry_points)
-    except Exception as err:  # noqa: BLE001  (a dry run that fails only loses the head start)
-        if _state["verbose"]:
-            print(f"{_PREFIX} Warp kernels load on first use ({type(err).__name__}: {err})", flush=True)
-        recorded = None
-    pending = [(m, bd) for m, bd in recorded or () if (m, str(device), bd) not in _loaded]
-    if not pending:
-        if alongside is not None:
-            alongside()
-        return None if recorded is None else 0
-    workers = max(1, int(max_workers or os.cpu_count() or 1))
-    before = _cache_entries()
-    start = last_print = time.perf_counter()
-    finished: list[float] = []  # when each module was ready: Warp's own time, whatever ``alongside`` takes
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(wp.force_load, device=device, modules=[m], block_dim=bd, max_workers=0)
-                   for m, bd in pending]
-        for future in futures:
-            future.add_done_callback(lambda _: finished.append(time.perf_counter()))
+    return KernelLoad(device, entry_points, max_workers).wait(alongside)
+
+
+class KernelLoad:
+    """``load_kernels`` in two halves: the constructor records the entry points' modules (in this thread: the
+    recording replaces ``wp.launch`` while it runs) and starts compiling them on a pool of threads, in the
+    background; ``wait`` joins it. In between, this thread is free to build the rest of the task. Its own Warp
+    launches must not need the pending modules (two threads compiling one module would share its build folder):
+    the simulator waits before any launch of its own.
+    """
+
+    def __init__(self, device: wp.context.Device, entry_points: Sequence[Callable[[], None]],
+                 max_workers: int | None = None) -> None:
+        self.device = device
+        try:
+            recorded = _record_launches(entry_points)
+        except Exception as err:  # noqa: BLE001  (a dry run that fails only loses the head start)
+            if _state["verbose"]:
+                print(f"{_PREFIX} Warp kernels load on first use ({type(err).__name__}: {err})", flush=True)
+            recorded = None
+        self.recorded = recorded is not None
+        self.pending = [(m, bd) for m, bd in recorded or () if (m, str(device), bd) not in _loaded]
+        self.workers = max(1, int(max_workers or os.cpu_count() or 1))
+        self._stop = threading.Event()  # set when the waiting thread gives up: drop the modules not yet started
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._compile, name="warp-kernel-load", daemon=True)
+        if self.pending:
+            self._thread.start()
+
+    def wait(self, alongside: Callable[[], None] | None = None) -> int | None:
+        """Run ``alongside`` in this thread, then wait for the modules; raise the first error of either (the
+        modules already compiling finish first). Returns what ``load_kernels`` returns."""
         try:
             if alongside is not None:
                 alongside()
-            for future in as_completed(futures):
-                future.result()
-                now, done = time.perf_counter(), sum(f.done() for f in futures)  # all ready by now
-                if done < len(futures) and now - last_print >= _PROGRESS_EVERY_S:
-                    left = (now - start) / done * (len(futures) - done)
-                    print(f"{_PREFIX} Warp kernels on {device}: {done}/{len(futures)} modules ready after "
-                          f"{now - start:.0f} s, about {left:.0f} s left", flush=True)
-                    last_print = now
         except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)  # the with-block still waits for the running ones
+            self._stop.set()
+            self._join()
             raise
-    _loaded.update((m, str(device), bd) for m, bd in pending)
-    compiled = len(_cache_entries() - before)
-    took = max(finished) - start
-    cache = wp.config.kernel_cache_dir
-    if compiled:
-        detail = f"{compiled} compiled on {workers} threads, {len(pending) - compiled} from the cache {cache}"
-    else:
-        detail = f"all from the cache {cache}"
-    print(f"{_PREFIX} Warp kernels on {device}: {len(pending)} modules ready in {took:.1f} s ({detail})", flush=True)
-    return len(pending)
+        self._join()
+        if self._error is not None:
+            raise self._error
+        if not self.pending:
+            return 0 if self.recorded else None
+        return len(self.pending)
+
+    def _join(self) -> None:
+        if not self._thread.is_alive():
+            return
+        try:
+            while self._thread.is_alive():
+                self._thread.join(timeout=0.5)  # in slices: a Ctrl-C here is taken at once
+        except BaseException:
+            self._stop.set()
+            raise
+
+    def _compile(self) -> None:
+        with _compile_lock:
+            self.pending = [(m, bd) for m, bd in self.pending if (m, str(self.device), bd) not in _loaded]
+            if self.pending:
+                self._compile_pending()
+
+    def _compile_pending(self) -> None:
+        device, pending = self.device, self.pending
+        before = _cache_entries()
+        start = last_print = time.perf_counter()
+        finished: list[float] = []  # when each module was ready: Warp's own time, whatever else runs meanwhile
+        try:
+            with ThreadPoolExecutor(max_workers=self.workers) as pool:
+                futures = [pool.submit(wp.force_load, device=device, modules=[m], block_dim=bd, max_workers=0)
+                           for m, bd in pending]
+                for future in futures:
+                    future.add_done_callback(lambda _: finished.append(time.perf_counter()))
+                try:
+                    for future in _completed(futures, self._stop):
+                        future.result()
+                        now, done = time.perf_counter(), sum(f.done() for f in futures)  # all ready by now
+                        if done < len(futures) and now - last_print >= _PROGRESS_EVERY_S:
+                            left = (now - start) / done * (len(futures) - done)
+                            print(f"{_PREFIX} Warp kernels on {device}: {done}/{len(futures)} modules ready after "
+                                  f"{now - start:.0f} s, about {left:.0f} s left", flush=True)
+                            last_print = now
+                except BaseException:
+                    pool.shutdown(wait=False, cancel_futures=True)  # the with-block still waits for the running ones
+                    raise
+        except BaseException as err:  # noqa: BLE001  (handed to the waiting thread)
+            self._error = err
+            return
+        _loaded.update((m, str(device), bd) for m, bd in pending)
+        compiled = len(_cache_entries() - before)
+        took = max(finished) - start
+        cache = wp.config.kernel_cache_dir
+        if compiled:
+            detail = f"{compiled} compiled on {self.workers} threads, {len(pending) - compiled} from the cache {cache}"
+        else:
+            detail = f"all from the cache {cache}"
+        print(f"{_PREFIX} Warp kernels on {device}: {len(pending)} modules ready in {took:.1f} s ({detail})",
+              flush=True)
+
+
+class _Stopped(Exception):
+    """The waiting thread gave up (its own error or a Ctrl-C): modules not yet started are dropped."""
+
+
+def _completed(futures: list, stop: threading.Event):
+    """``as_completed(futures)``, checking ``stop`` between completions (and at least every half second)."""
+    remaining = set(futures)
+    while remaining:
+        if stop.is_set():
+            raise _Stopped()
+        done, remaining = wait(remaining, timeout=0.5, return_when=FIRST_COMPLETED)
+        yield from done

@@ -21,7 +21,7 @@ import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.cameras import CameraSpec, Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
-from isaacgymenvs_mw.sim.kernels import init_warp, load_kernels
+from isaacgymenvs_mw.sim.kernels import KernelLoad, init_warp
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
@@ -117,6 +117,7 @@ class Simulator:
         # compile its step meanwhile).
         self._sizes = (nconmax, njmax)
         self._kernels_recorded: bool | None = None  # None: not loaded yet
+        self._kernel_load: KernelLoad | None = None
 
         self._bind_views()
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
@@ -128,6 +129,9 @@ class Simulator:
         self.cameras: Cameras | None = None
         if cameras:
             self.cameras = Cameras(mj_model, self.model, self.data, cameras, self.num_worlds, self.wp_device)
+        # The kernels start compiling now, in the background (the render context above launched its own first): a
+        # cold start compiles while the task builds the rest of itself, not after it.
+        self._kernel_load = self._start_kernel_load()
 
     def load_kernels(self, alongside: Callable[[], None] | None = None) -> None:
         """Compile every kernel module that stepping, forward and kinematics use, in parallel, before the first launch
@@ -140,12 +144,19 @@ class Simulator:
             if alongside is not None:
                 alongside()
             return
+        load, self._kernel_load = self._kernel_load or self._start_kernel_load(), None
+        with wp.ScopedDevice(self.wp_device):
+            loaded = load.wait(alongside)
+        self._kernels_recorded = loaded is not None
+
+    def _start_kernel_load(self) -> KernelLoad:
+        """Record the modules of step, forward and kinematics (a dry run on scratch data of one world) and start
+        compiling them on a pool of threads (sim/kernels.py); ``load_kernels`` waits for them."""
         with wp.ScopedDevice(self.wp_device):
             scratch = mjw.make_data(self.mj_model, nworld=1, nconmax=self._sizes[0], njmax=self._sizes[1])
             entry_points = [lambda: mjw.step(self.model, scratch), lambda: mjw.forward(self.model, scratch),
                             lambda: mjw.kinematics(self.model, scratch)]
-            loaded = load_kernels(self.wp_device, entry_points, alongside=alongside)
-        self._kernels_recorded = loaded is not None
+            return KernelLoad(self.wp_device, entry_points)
 
     # ------------------------------------------------------------------ views
     def _bind_views(self) -> None:

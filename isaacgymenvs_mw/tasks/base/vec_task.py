@@ -128,7 +128,9 @@ class VecTask(ObservationGroups):
         self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
         self.set_viewer()
         self.allocate_buffers()
-        if not self.execution.compiled:  # a compiled step has Warp's kernels load while it compiles (execution.start)
+        # Warp's kernels have been compiling in the background since create_sim: wait for them now, or, with a compiled
+        # step, at the first step, while the step compiles (StepExecution.run).
+        if not self.execution.compiled:
             self.sim.load_kernels()
         self.obs_dict: dict[str, torch.Tensor] = {}
         self.rewards: RewardTerms | None = None  # a task that sums named terms sets it (tasks/base/rewards.py)
