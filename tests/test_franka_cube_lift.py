@@ -125,7 +125,9 @@ def test_resets_put_the_cube_on_the_table_within_the_documented_ranges():
 
 
 def test_a_scripted_grasp_and_lift_ends_the_episode_as_a_success():
-    from test_franka_grasp import ik  # damped least squares on MuJoCo C, fingers down (yaw 0)
+    from test_franka_grasp import (
+        ik,  # damped least squares on MuJoCo C, fingers down (yaw 0)
+    )
 
     env = make(num_envs=2, overrides=("task.env.frankaDofNoise=0.0",))
     env.reset()
@@ -151,7 +153,7 @@ def test_a_scripted_grasp_and_lift_ends_the_episode_as_a_success():
             arm = torch.clamp((goal - env.arm.targets[:, :7]) / step, -1.0, 1.0)
             action = torch.cat((arm, torch.full((2, 1), grip)), dim=1)
             rise = env.cube.root_pos[:, 2].numpy() - REST_Z
-            _, reward, done, extras = env.step(action)
+            _, _, done, extras = env.step(action)
             highest = np.maximum(highest, rise)
             new = extras["episode_outcomes"]["success"].bool() if done.any() else torch.zeros(2, dtype=torch.bool)
             assert torch.equal(new, done.bool() & ~succeeded)  # the only episodes ending are successes
@@ -205,8 +207,8 @@ def test_the_depth_image_sees_the_cube_where_a_pinhole_camera_puts_it():
         top = centre + [0.0, 0.0, 0.025]
         rel = top - pos
         along = -rel @ z
-        col = int(round((rel @ x) / along / tan * height / 2 + width / 2 - 0.5))
-        row = int(round(height / 2 - (rel @ y) / along / tan * height / 2 - 0.5))
+        col = int(np.rint((rel @ x) / along / tan * height / 2 + width / 2 - 0.5))
+        row = int(np.rint(height / 2 - (rel @ y) / along / tan * height / 2 - 0.5))
         # the ray through that pixel's centre: where it meets the cube's top face and the table top
         u = (col + 0.5 - width / 2) / (height / 2) * tan
         v = (height / 2 - row - 0.5) / (height / 2) * tan
