@@ -99,11 +99,7 @@ class ObservationGroups:
     @property
     def image_shape(self) -> tuple[int, int, int] | None:
         """(C, H, W) of the "camera" group as the learner sees it (frames stacked); None without image terms."""
-        if self.images is None:
-            return None
-        if self.image_stack is None:
-            self._build_history()
-        return self.image_stack.shape
+        return None if self.image_stack is None else self.image_stack.shape
 
     def camera_picture(self, world: int = 0) -> torch.Tensor:
         """World ``world``'s newest image observation as an (H, W * terms, 3) uint8 RGB picture (terms side by

@@ -135,13 +135,10 @@ class StepExecution:
                 self.before(self.graph_actions)
             with torch.cuda.graph(after, pool=before.pool()):
                 self.after()
-            observe = []  # graphs[2 + parity]: the image observation of a step of that parity
-            for step in ((self.steps, self.steps + 1) if self.sensors is not None else ()):
-                observe.append(torch.cuda.CUDAGraph())
-                with torch.cuda.graph(observe[-1], pool=before.pool()):
+            observe = [torch.cuda.CUDAGraph() for _ in range(2 if self.sensors is not None else 0)]
+            for step in range(self.steps, self.steps + len(observe)):  # graphs[2 + parity]: steps of that parity
+                with torch.cuda.graph(observe[step % 2], pool=before.pool()):
                     self.sensors[1](step)
-            if self.steps % 2:
-                observe.reverse()
         except Exception as err:
             raise RuntimeError(
                 f"sim.captureStep: {self.name}'s step could not be captured as CUDA graphs ({err}). A task whose "
