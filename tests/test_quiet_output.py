@@ -1,5 +1,5 @@
 """What a run prints: one line for Warp's kernels (Warp's own lines only with verbose=True), no CUDA-driver warning on
-CPU runs, no rsl_rl network printout, a plain word while no episode has ended; and kernels ready before the first
+CPU runs, no rsl_rl network printout, a plain word while no episode has ended (and a different one for a quiet iteration later); and kernels ready before the first
 step, so that stepping compiles or loads nothing more."""
 
 from __future__ import annotations
@@ -36,6 +36,17 @@ def test_default_output_is_compact(tmp_path):
     (it_line,) = [ln for ln in out.splitlines() if ln.startswith("[it ")]
     assert "no episode ended yet (longest 2/" in it_line and "ep_rew" not in it_line, it_line
     assert it_line.endswith("| ETA 0s"), it_line  # the last iteration: nothing left
+
+
+def test_a_quiet_iteration_after_episodes_have_ended_is_not_called_yet(tmp_path):
+    # Cartpole episodes of at most 4 steps (episodeLength_s / dt = 0.066 / 0.0166) time out after 3 steps, all envs
+    # together, and an iteration is 2 steps: steps 1-2 end nothing, 3 and 6 end every episode, 7-8 end nothing.
+    out = train(tmp_path, "max_iterations=4", "task.env.episodeLength_s=0.066")
+    lines = [ln for ln in out.splitlines() if ln.startswith("[it ")]
+    assert len(lines) == 4, out[-2000:]
+    assert "no episode ended yet (longest 2/4" in lines[0], lines[0]
+    assert "ep_len     3.0" in lines[1] and "ep_len     3.0" in lines[2], lines
+    assert "no episode ended this iteration (longest 2/4" in lines[3], lines[3]
 
 
 def test_eta_formats_the_time_left():

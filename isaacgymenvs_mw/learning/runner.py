@@ -201,7 +201,10 @@ class Runner(OnPolicyRunner):
                     episodes += f" | {key[len(METRIC_GROUP):]} {value:5.2f}"
         else:  # a host read, but only on iterations where no episode ended
             longest = int(env.episode_length_buf.max())
-            episodes = f"no episode ended yet (longest {longest}/{int(env.max_episode_length)} steps)"
+            # "yet" only before the first episode end: later, a quiet iteration is one where every env is mid-episode
+            # (e.g. time-outs of envs reset together), not a run that has never ended an episode.
+            when = "this iteration" if self.recent else "yet"
+            episodes = f"no episode ended {when} (longest {longest}/{int(env.max_episode_length)} steps)"
         eta = _duration(steady_iteration_s(self.history) * (last_it - it - 1)) if it + 1 < last_it else "0s"
         print(
             f"[it {it + 1:>5}/{last_it}] steps {self.total_env_steps:>11,} | {fps:>10,.0f} steps/s | "
