@@ -7,11 +7,15 @@ A bad value (ours or one Hydra refuses) ends the run with one line on stderr and
 HYDRA_FULL_ERROR=1 shows the traceback as well.
 """
 
+import faulthandler
 import signal
 import sys
 import time
 
 _STARTED_AT = time.perf_counter()
+# A native crash (segfault, abort) in a simulator, renderer or CUDA library would otherwise end the run with no word in
+# its log: Python's tracebacks of every thread go to stderr instead, naming where it died.
+faulthandler.enable()
 
 import hydra  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402

@@ -1,12 +1,14 @@
 """What a run prints: one line for Warp's kernels (Warp's own lines only with verbose=True), no CUDA-driver warning on
-CPU runs, no rsl_rl network printout, a plain word while no episode has ended (and a different one for a quiet iteration later); and kernels ready before the first
-step, so that stepping compiles or loads nothing more."""
+CPU runs, no rsl_rl network printout, a plain word while no episode has ended (another for a quiet iteration after
+that); kernels ready before the first step, so that stepping compiles or loads nothing more; and, should a native
+library crash, every thread's Python stack in the log."""
 
 from __future__ import annotations
 
 import math
 import os
 import re
+import signal
 import subprocess
 import sys
 
@@ -47,6 +49,24 @@ def test_a_quiet_iteration_after_episodes_have_ended_is_not_called_yet(tmp_path)
     assert "no episode ended yet (longest 2/4" in lines[0], lines[0]
     assert "ep_len     3.0" in lines[1] and "ep_len     3.0" in lines[2], lines
     assert "no episode ended this iteration (longest 2/4" in lines[3], lines[3]
+
+
+def test_a_native_crash_leaves_the_python_stack_in_the_log(tmp_path):
+    # A segfault inside library code (sent here as SIGSEGV once training runs) prints every thread's Python stack.
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=100000",
+           "train.runner.num_steps_per_env=2", *CPU_ARGS, f"runs_dir={tmp_path / 'runs'}"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=ENV)
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("[it "):
+            proc.send_signal(signal.SIGSEGV)
+            break
+    out = "".join(lines) + proc.communicate(timeout=120)[0]
+    assert proc.returncode == -signal.SIGSEGV, out[-2000:]
+    assert "Fatal Python error: Segmentation fault" in out, out[-2000:]
+    main_thread_in_learn = r"Current thread .*\n(  File .*\n)*  File .*runner\.py\", line \d+ in learn"
+    assert re.search(main_thread_in_learn, out), out[-2000:]  # the main thread's frames, in the training loop
 
 
 def test_eta_formats_the_time_left():
