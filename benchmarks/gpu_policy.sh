@@ -8,7 +8,8 @@ task=$1; cache=$2; out=$3; limit=${4:-400}
 mkdir -p "$out"
 [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp" "/tmp/torchinductor_$(whoami)" "${HOME}/.triton/cache"
 t0=$(date +%s.%N)
-timeout "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" > "$out/$task.$cache.log" 2>&1
+# --preserve-status: the run's own exit status (143: stopped by the SIGTERM as designed; 139: a segfault), not 124
+timeout --preserve-status "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" > "$out/$task.$cache.log" 2>&1
 rc=$?
 t1=$(date +%s.%N)
 grep -E "^\[it +(1|2|100|200|300|400|500)/|compiled|\[train\] done|Error" "$out/$task.$cache.log" | cut -c1-140

@@ -19,7 +19,8 @@ mkdir -p "$out"; rm -f "$out/done"
 trap 'touch "$out/done"' EXIT  # also when a step fails
 [ "$cache" = cold ] && rm -rf "${HOME}/.cache/warp" "/tmp/torchinductor_$(whoami)" "${HOME}/.triton/cache"
 t0=$(date +%s.%N)
-timeout -s INT "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" ${OVERRIDES:-} > "$out/$task.$cache.log" 2>&1
+# --preserve-status: the run's own exit status (130: stopped by the SIGINT as designed; 139: a segfault), not 124
+timeout --preserve-status -s INT "$limit" python3 train.py task="$task" headless=True runs_dir="$out/runs" ${OVERRIDES:-} > "$out/$task.$cache.log" 2>&1
 rc=$?
 t1=$(date +%s.%N)
 grep -E "^\[it +(1|2|100|200|400|600|800|1000|1200|1500)/|\[train\] (done|stopped)|Error" "$out/$task.$cache.log" \
