@@ -67,6 +67,9 @@ REQUIRED_HOOKS = {
 
 class VecTask(ObservationGroups):
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
+    # True: the episodes that end by ``check_success`` are counted as successes, logged as Episode/success (the rate
+    # over ended episodes) and in test mode's eval "success" (each env's first episode).
+    reports_success: bool = False
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
@@ -269,7 +272,7 @@ class VecTask(ObservationGroups):
 
     def check_success(self) -> torch.Tensor:
         """(num_envs,) bool: the envs that reached the task's goal this step (their episodes end, bootstrapped as
-        at a time-out); default: none."""
+        at a time-out); default: none. With ``reports_success`` the rate is logged (``reset_envs``)."""
         return torch.zeros_like(self.nonfinite_buf)
 
     def compute_reward(self) -> None:
@@ -278,10 +281,15 @@ class VecTask(ObservationGroups):
     def reset_envs(self, env_ids: torch.Tensor) -> None:
         """Reset the selected envs: the randomisation layer draws their new model values first (so the task's
         reset sees the world it will run in), then the task's ``reset_idx``; the reward helper, when the task has
-        one, reports their episode sums (``extras["episode_terms"]``)."""
+        one, reports their episode sums (``extras["episode_terms"]``), and, with ``reports_success``, which of them
+        succeeded."""
         mask = self.env_mask(env_ids)
         self.randomizer.on_reset(mask)
         self.reset_idx(mask)
+        if self.reports_success:
+            success = (self.success_buf & mask).float()
+            self.extras.setdefault("episode_metrics", {})["success"] = success.sum()
+            self.extras.setdefault("episode_outcomes", {})["success"] = success
         if self.rewards is not None:
             self.extras["episode_terms"] = self.rewards.finish_episodes(mask)
 
