@@ -8,6 +8,7 @@ HYDRA_FULL_ERROR=1 shows the traceback as well.
 """
 
 import faulthandler
+import os
 import signal
 import sys
 import time
@@ -16,6 +17,12 @@ _STARTED_AT = time.perf_counter()
 # A native crash (segfault, abort) in a simulator, renderer or CUDA library would otherwise end the run with no word in
 # its log: Python's tracebacks of every thread go to stderr instead, naming where it died.
 faulthandler.enable()
+
+from isaacgymenvs_mw.utils.stop import PROCESS_STOP  # noqa: E402  (standard library only: imports in milliseconds)
+
+# From here to the last line, SIGTERM and SIGINT stop the run with one line and the signal's exit status; while it
+# trains, with its checkpoint and summary (isaacgymenvs_mw/utils/stop.py). Before this line they end it silently.
+PROCESS_STOP.install()
 
 import hydra  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402
@@ -36,14 +43,30 @@ def main(cfg: DictConfig) -> None:
         record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the YAML's folder
         try:
             run(cfg, started_at=_STARTED_AT)
-        except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: the run saved its checkpoint and summary
-            signum = int(getattr(err, "signum", signal.SIGINT))
-            if not getattr(err, "reported", False):  # stopped before training began: nothing was saved
-                print(f"[train] stopped by {signal.Signals(signum).name} before the first training iteration ended: "
-                      "no checkpoint exists yet", file=sys.stderr, flush=True)
-            sys.exit(128 + signum)  # the shell's convention: 130 for SIGINT, 143 for SIGTERM
+        except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: a training run saved its checkpoint and summary
+            _stopped(err, evaluating=bool(cfg.get("test", False)))
+
+
+def _stopped(err: KeyboardInterrupt, evaluating: bool = False) -> None:
+    """End the process after a stop, with the shell's convention for its status: 130 for SIGINT, 143 for SIGTERM."""
+    signum = int(getattr(err, "signum", signal.SIGINT))
+    if getattr(err, "reported", False):  # the run wrote its checkpoint, its summary and its own stop line
+        sys.exit(128 + signum)
+    name = signal.Signals(signum).name
+    if evaluating:
+        print(f"[eval] stopped by {name}: no eval.json written", file=sys.stderr, flush=True)
+    else:
+        print(f"[train] stopped by {name} before the first training iteration ended: no checkpoint exists yet",
+              file=sys.stderr, flush=True)
+    sys.stdout.flush()
+    # Nothing is left to save, so the process ends now: a normal exit would first wait for every Warp kernel module
+    # still queued on the compile threads, which takes up to minutes on a cold cache.
+    os._exit(128 + signum)
 
 
 if __name__ == "__main__":
-    with report_input_errors():
-        main()
+    try:
+        with report_input_errors():
+            main()
+    except KeyboardInterrupt as stop:  # while Hydra composed the config, before main() began
+        _stopped(stop)

@@ -15,8 +15,9 @@ import torch
 
 from conftest import CPU_ARGS, REPO_ROOT
 from isaacgymenvs_mw import make
-from isaacgymenvs_mw.learning.launch import _stop_on_signal, run
+from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.runner import Runner, StopRequested
+from isaacgymenvs_mw.utils.stop import StopProtocol
 from isaacgymenvs_mw.utils.config import check_runs_dir, compose_config
 
 
@@ -138,7 +139,7 @@ def test_a_signal_only_asks_the_runner_to_stop_and_a_later_sigint_insists():
     # it records the signal, and Runner.learn raises StopRequested between env steps.
     runner = SimpleNamespace(stop_signal=None)
     before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
-    with _stop_on_signal(runner, repeat_window_s=0.0):  # every repeat comes "later"
+    with StopProtocol(repeat_window_s=0.0).training(runner):  # every repeat comes "later"
         _deliver(signal.SIGTERM)
         assert runner.stop_signal == signal.SIGTERM
         _deliver(signal.SIGTERM)  # `timeout` sends two: ignored
@@ -155,7 +156,7 @@ def test_sigint_pair_from_timeout_is_one_request():
     # `timeout -s INT` signals the process and then its group: the second SIGINT, even after the handler has run,
     # must not raise where it lands.
     runner = SimpleNamespace(stop_signal=None)
-    with _stop_on_signal(runner, repeat_window_s=3600.0):
+    with StopProtocol(repeat_window_s=3600.0).training(runner):
         _deliver(signal.SIGINT)
         assert runner.stop_signal == signal.SIGINT
         _deliver(signal.SIGINT)  # would raise KeyboardInterrupt here if it counted as insisting

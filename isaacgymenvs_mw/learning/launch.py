@@ -7,7 +7,6 @@ import json
 import os
 import signal
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -30,6 +29,7 @@ from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_di
 from isaacgymenvs_mw.utils.device import resolve_device
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError, one_line
 from isaacgymenvs_mw.utils.seeding import set_seed
+from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 
 
 def run(cfg: DictConfig, started_at: float | None = None) -> dict:
@@ -86,8 +86,9 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
             _attach_video_recorder(cfg, task, run_dir / "videos")
     start_it = runner.current_learning_iteration
     interrupted: KeyboardInterrupt | None = None
-    with _stop_on_signal(runner):
-        # Printed once a signal can only ask the run to stop: from here on the summary is always written.
+    # From here on a signal only asks the run to stop, and the summary is always written: a signal that comes while
+    # it is written is recorded, not raised.
+    with PROCESS_STOP.training(runner):
         print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
               f"{max_iterations} iterations, run dir {run_dir}", flush=True)
         try:
@@ -95,10 +96,23 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
                          init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
         except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): Runner.learn has saved the model
             interrupted = err
+        summary = _summary(cfg, task, runner, seed, start_it, started_at, run_dir, interrupted)
+        if is_main:
+            _report_end(summary, runner, run_dir, interrupted)
+        task.close()
+        _leave_process_group(runner)
+    if interrupted is not None:
+        interrupted.reported = True  # train.py only sets the exit status
+        raise interrupted  # train.py turns it into exit status 128 + signal number
+    return summary
 
+
+def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, started_at: float, run_dir: Path,
+             interrupted: KeyboardInterrupt | None) -> dict:
+    """What summary.json holds: the run's final metrics, throughput, learner health, device and versions."""
     wall = time.perf_counter() - started_at
     means = runner.recent_means()
-    summary = {
+    return {
         "task": cfg.task_name,
         "num_envs": task.num_envs,
         "world_size": runner.gpu_world_size,
@@ -114,26 +128,28 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         "timeout_fraction": means.get("timeout_fraction"),
         **episode_metrics(means),  # what the task declares, by name (terrain_level on the terrain tasks)
         "nonfinite_resets": runner.nonfinite_resets,
+        **runner.learner_health(),  # optimiser steps skipped, states restored
         "device": device_description(task.sim_device),
         "versions": package_versions(),
         "run_dir": str(run_dir),
         "interrupted": interrupted is not None,
         "signal": None if interrupted is None else signal.Signals(_signal_number(interrupted)).name,
+        "interrupted_checkpoint": runner.interrupted_checkpoint,
         "history": runner.history,
     }
-    if is_main:
-        write_json(run_dir / "summary.json", summary)
-        ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
-        print(f"[train] {ended} {wall:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
-              f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
-        if interrupted is not None and summary["iterations"] == 0:
-            print("[train] no checkpoint exists yet: the first is written when an iteration ends", flush=True)
-    task.close()
-    _leave_process_group(runner)
-    if interrupted is not None:
-        interrupted.reported = True  # train.py only sets the exit status
-        raise interrupted  # train.py turns it into exit status 128 + signal number
-    return summary
+
+
+def _report_end(summary: dict, runner: Runner, run_dir: Path, interrupted: KeyboardInterrupt | None) -> None:
+    write_json(run_dir / "summary.json", summary)
+    ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
+    print(f"[train] {ended} {summary['wall_time_s']:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
+          f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
+    if interrupted is None:
+        return
+    if runner.interrupted_checkpoint is not None:
+        print(f"[train] what it learned is in {runner.interrupted_checkpoint}", flush=True)
+    elif summary["iterations"] == 0:
+        print("[train] no checkpoint exists yet: the first is written when an iteration ends", flush=True)
 
 
 # Worlds on the CPU device above which building and the first iteration take long enough to deserve a word.
@@ -175,42 +191,6 @@ def seed_run(cfg: DictConfig, rank: int = 0) -> int:
 
 def _signal_number(err: KeyboardInterrupt) -> int:
     return int(getattr(err, "signum", signal.SIGINT))
-
-
-@contextmanager
-def _stop_on_signal(runner: Runner, repeat_window_s: float = 1.0):
-    """While training, SIGTERM (schedulers' preemption or time limit) and SIGINT (Ctrl-C, ``kill -INT``) ask the
-    runner to stop; it stops at the next env step, saves its checkpoint and raises ``StopRequested``, so the summary
-    is written too. The handler raises nothing itself: an exception thrown into library code at an arbitrary point
-    (a compiled step, a CUDA graph, TensorBoard's queue) is how a stopped run can lose both. A second SIGINT is a
-    user insisting: it raises KeyboardInterrupt at once (the checkpoint is still attempted), but only when it comes
-    ``repeat_window_s`` or more after the first: ``timeout -s INT`` sends one signal to the process and one to its
-    process group, and when Python ran the handler between the two, the second one raised inside a compiled step
-    on an H100 and the process died without its checkpoint or summary (twelfth session). Repeated SIGTERMs are
-    ignored. SIGINT is handled even where the process started with it ignored (a background job of a
-    non-interactive shell). Only the main thread can handle signals; elsewhere nothing changes."""
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    first_at: list[float] = []
-
-    def handler(signum, frame):
-        if runner.stop_signal is None:
-            runner.stop_signal = signum
-            first_at.append(time.monotonic())
-        elif signum == signal.SIGINT and time.monotonic() - first_at[0] >= repeat_window_s:
-            raise KeyboardInterrupt()
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    previous_int = signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-        signal.signal(signal.SIGINT, previous_int)
 
 
 def _leave_process_group(runner: Runner) -> None:

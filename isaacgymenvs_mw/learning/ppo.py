@@ -97,6 +97,10 @@ class SyncFreePPO(PPO):
         self._perm = torch.empty(self._num_samples, dtype=torch.long, device=self.device)
         self._advantages = torch.zeros_like(self.storage.advantages)
         self.capture_update = self._resolve_capture(capture_update)
+        # Optimiser steps skipped because their loss or gradient was not finite, counted on the device; the runner
+        # reads the count when it logs (``take_skipped_steps``).
+        self._skipped_steps = torch.zeros((), dtype=torch.long, device=self.device)
+        self._step_ok = torch.ones((), dtype=torch.bool, device=self.device)
         self._graph: torch.cuda.CUDAGraph | None = None
         self._graph_loss_sums: torch.Tensor | None = None
         self._eager_updates = 0
@@ -126,8 +130,9 @@ class SyncFreePPO(PPO):
         # The rule runs in float64 like rsl-rl-lib's Python floats; Adam reads the float32 copy.
         self._lr64 = torch.tensor(rate, dtype=torch.float64, device=self.device)
         self._lr = torch.tensor(rate, dtype=torch.float32, device=self.device)
-        # Fused Adam takes a device-tensor rate without reading it; on the CPU the single-tensor Adam does.
-        flags = {"fused": self._on_cuda, "foreach": False, "capturable": False}
+        # Fused Adam takes a device-tensor rate without reading it, and skips a step on the device when told to
+        # (``found_inf``, set per mini-batch by ``_optimisation_steps``), on CUDA and on the CPU.
+        flags = {"fused": True, "foreach": False, "capturable": False}
         for group in self.optimizer.param_groups:
             group["lr"] = self._lr
             group.update(flags)
@@ -264,11 +269,24 @@ class SyncFreePPO(PPO):
                 kl_mean = self._all_reduce_gradients(kl_mean)
             if kl_mean is not None:
                 self._adapt_learning_rate(kl_mean)
+            # One non-finite sample (a blown-up world's state, a return that overflowed) makes the loss or the
+            # gradient NaN, and one Adam step with it makes every weight NaN for good: such a step is skipped on the
+            # device (fused Adam's found_inf) and counted, its losses left out of the sums. No host read.
+            losses = torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy.detach()]).float()
+            torch.logical_and(torch.isfinite(self._flat).all(), torch.isfinite(loss.detach()), out=self._step_ok)
+            self.optimizer.found_inf = (~self._step_ok).float()
+            self._skipped_steps += (~self._step_ok).long()
             torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
             torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
             self.optimizer.step()
-            loss_sums += torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy.detach()]).float()
+            loss_sums += torch.where(self._step_ok, losses, torch.zeros_like(losses))
         return loss_sums
+
+    def take_skipped_steps(self) -> int:
+        """Optimiser steps skipped since the last call (a host read: call it where the iteration syncs anyway)."""
+        skipped = int(self._skipped_steps)
+        self._skipped_steps.zero_()
+        return skipped
 
     def _surrogate_loss(self, log_prob: torch.Tensor, batch) -> torch.Tensor:
         ratio = torch.exp(log_prob - torch.squeeze(batch.old_actions_log_prob))

@@ -22,10 +22,12 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 
+from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_tensors
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
 from isaacgymenvs_mw.utils.config import check_train_config
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401  (StopRequested: imported from here too)
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")
 
@@ -60,15 +62,6 @@ def device_description(device: str) -> str:
     return f"cpu ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
 
 
-class StopRequested(KeyboardInterrupt):
-    """Raised by ``Runner.learn`` between env steps once ``stop_signal`` is set (a signal handler sets it): the run
-    stops where no library code is mid-call, with the same checkpoint and summary as Ctrl-C."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
-
-
 class Runner(OnPolicyRunner):
     """OnPolicyRunner with a sync-free rollout, one progress line per iteration, and a run summary."""
 
@@ -87,6 +80,14 @@ class Runner(OnPolicyRunner):
         self.run_config: dict | None = None  # the resolved run config, attached to W&B runs
         self.experiment = "run"  # W&B's default project
         self.stop_signal: int | None = None  # set from a signal handler; learn() stops at the next env step
+        self.interrupted_checkpoint: str | None = None  # the model_<it>_interrupted.pt a stop wrote
+        self.last_checkpoint: str | None = None
+        # Learner health: optimiser steps skipped for a non-finite loss or gradient, worlds whose observation or
+        # reward held NaN/inf, and how often the last finite learner state was put back.
+        self.skipped_steps = 0
+        self.nonfinite_inputs = 0
+        self.guard = LearnerGuard(lambda: learner_tensors(self.alg))
+        self._good_iteration: int | None = None  # the iteration whose learner state the guard holds
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
@@ -119,6 +120,8 @@ class Runner(OnPolicyRunner):
                         obs, rewards, dones, extras = env.step(actions.to(env.device))
                         obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
                         self.alg.process_env_step(obs, rewards, dones, extras)
+                        if step == 0 and it == start_it:  # the first step compiles (torch, Triton): check after it
+                            keep_stop_handler()
                         self._stop_if_requested()
                         if progress is not None:
                             progress.step_done(step + 1)
@@ -134,18 +137,23 @@ class Runner(OnPolicyRunner):
                     update_end.synchronize()
                     learn_s = rollout_end.elapsed_time(update_end) / 1000.0
                 self.current_learning_iteration = it + 1
-                self._log_iteration(writer, it, last_it, t2 - t0 - learn_s, learn_s, losses)
+                skipped = self.alg.take_skipped_steps() if hasattr(self.alg, "take_skipped_steps") else 0
+                restored = self._keep_learner_finite(it + 1)
+                self._log_iteration(writer, it, last_it, t2 - t0 - learn_s, learn_s, losses, skipped, restored)
+                keep_stop_handler()
                 if self.is_main and self.log_dir and (it + 1) % self.cfg["save_interval"] == 0:
-                    self.save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
+                    self._save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
                 self._stop_if_requested()
         except BaseException:
             # An interrupted run keeps what it learned so far.
             if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
-                self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}_interrupted.pt"))
+                path = os.path.join(self.log_dir, f"model_{self.current_learning_iteration}_interrupted.pt")
+                self._save(path)
+                self.interrupted_checkpoint = path
             raise
         else:  # saved while the writer is open, so that W&B uploads the final checkpoint too
             if self.is_main and self.log_dir:
-                self.save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}.pt"))
+                self._save(os.path.join(self.log_dir, f"model_{self.current_learning_iteration}.pt"))
         finally:
             if writer is not None:
                 writer.close()
@@ -153,11 +161,42 @@ class Runner(OnPolicyRunner):
                     writer.stop()
                 self.logger.writer = None
 
+    def _save(self, path: str) -> None:
+        self.save(path)
+        self.last_checkpoint = path
+
+    def _keep_learner_finite(self, iteration: int) -> str | None:
+        """After an update: keep the learner's state when it is finite; put the last finite one back when it is not
+        (the last checkpoint where none is in memory). Returns the line that says what was put back, else None."""
+        try:
+            if self.guard.check():
+                self._good_iteration = iteration
+                return None
+            return (f"the learner's weights, optimiser state or normaliser statistics were not finite after "
+                    f"iteration {iteration}; restored their state after iteration {self._good_iteration}")
+        except NoGoodState:
+            if self.last_checkpoint is None:
+                raise RuntimeError(f"the learner's weights, optimiser state or normaliser statistics were not finite "
+                                   f"after iteration {iteration}, and no finite state or checkpoint exists to "
+                                   "restore") from None
+            self.load(self.last_checkpoint, map_location=self.device)
+            self.guard.restores += 1
+            self.current_learning_iteration = iteration
+            self._good_iteration = None
+            return (f"the learner's weights, optimiser state or normaliser statistics were not finite after "
+                    f"iteration {iteration}; restored them from {self.last_checkpoint}")
+
+    def learner_health(self) -> dict[str, int]:
+        """What summary.json reports of the learner's defences against non-finite numbers."""
+        return {"skipped_optimizer_steps": self.skipped_steps, "nonfinite_inputs": self.nonfinite_inputs,
+                "learner_restores": self.guard.restores}
+
     def _stop_if_requested(self) -> None:
         if self.stop_signal is not None:
             raise StopRequested(self.stop_signal)
 
-    def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict) -> None:
+    def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,
+                       skipped: int = 0, restored: str | None = None) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
         stats = env.stats.pop()  # the one host sync of the iteration
         world = self.gpu_world_size
@@ -172,6 +211,9 @@ class Runner(OnPolicyRunner):
                   "losses": {k: float(v) for k, v in losses.items()}, "learning_rate": float(self.alg.learning_rate)}
         self.history.append(record)
         self.nonfinite_resets += int(stats["nonfinite_resets"])
+        self.nonfinite_inputs += int(stats.get("nonfinite_inputs", 0))
+        self.skipped_steps += skipped
+        record.update(skipped_optimizer_steps=skipped, learner_restored=restored is not None)
         if not self.is_main:
             return
         if writer is not None:
@@ -183,7 +225,7 @@ class Runner(OnPolicyRunner):
             writer.add_scalar("Perf/collection_time", collect_s, it)
             writer.add_scalar("Perf/learning_time", learn_s, it)
             for key, value in stats.items():
-                if key in ("episodes", "nonfinite_resets"):
+                if key in ("episodes", "nonfinite_resets", "nonfinite_inputs"):
                     continue
                 tag = key if "/" in key else f"Train/{key}"
                 writer.add_scalar(tag, value, it)
@@ -191,9 +233,20 @@ class Runner(OnPolicyRunner):
                     writer.add_scalar(f"{tag}/time", value, int(self.train_time))
         if writer is not None:
             writer.add_scalar("Sim/nonfinite_resets", self.nonfinite_resets, it)
+            writer.add_scalar("Learner/skipped_optimizer_steps", self.skipped_steps, it)
+            writer.add_scalar("Learner/nonfinite_inputs", self.nonfinite_inputs, it)
+            writer.add_scalar("Learner/restores", self.guard.restores, it)
         if stats["nonfinite_resets"]:
             print(f"[it {it + 1:>5}] {int(stats['nonfinite_resets'])} env(s) had NaN/inf or diverged (a speed "
                   f"above 1e4) simulator state and were reset ({self.nonfinite_resets} so far)", flush=True)
+        if stats.get("nonfinite_inputs"):
+            print(f"[it {it + 1:>5}] {int(stats['nonfinite_inputs'])} observation(s) or reward(s) held NaN/inf and "
+                  f"were replaced by 0 before the learner saw them ({self.nonfinite_inputs} so far)", flush=True)
+        if skipped:
+            print(f"[it {it + 1:>5}] {skipped} optimiser step(s) skipped: their loss or gradient was not finite "
+                  f"({self.skipped_steps} so far)", flush=True)
+        if restored is not None:
+            print(f"[it {it + 1:>5}] {restored}", flush=True)
         if stats["episodes"]:
             episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
             for key, value in stats.items():  # the metrics the task declares (e.g. a curriculum's terrain level)
@@ -218,7 +271,7 @@ class Runner(OnPolicyRunner):
         total = sum(s["episodes"] for s in self.recent)
         if total == 0:
             return {}
-        keys = [k for k in self.recent[-1] if k not in ("episodes", "nonfinite_resets")]
+        keys = [k for k in self.recent[-1] if k not in ("episodes", "nonfinite_resets", "nonfinite_inputs")]
         return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
 
 
@@ -239,6 +292,13 @@ class _FirstCollectProgress:
         left = spent / step * (self.steps - step)
         print(f"[it {self.iteration:>5}] collecting: env step {step}/{self.steps} after {_duration(spent)}, "
               f"about {_duration(left)} more before the update", flush=True)
+
+
+def keep_stop_handler() -> None:
+    """Put the process's stop handler back if a library replaced it (see utils/stop.py), saying so once."""
+    message = PROCESS_STOP.reassert()
+    if message is not None:
+        print(message, flush=True)
 
 
 def episode_metrics(means: dict[str, float]) -> dict[str, float]:
@@ -294,6 +354,8 @@ def evaluate(task, policy, device: str) -> dict:
         for step in range(max_steps):
             actions = policy(obs.to(device))
             obs, rew, dones, extras = env.step(actions.to(env.device))
+            if step == 0:  # the first step compiles (torch, Triton): check after it
+                keep_stop_handler()
             active = ~finished
             ret += rew * active
             length += active.float()

@@ -26,6 +26,8 @@ class EpisodeStats:
         self.totals = torch.zeros(5, device=device, dtype=torch.float64)
         self._terms: dict[tuple[str, ...], torch.Tensor] = {}  # names -> accumulated sums
         self._running: dict[str, torch.Tensor] = {}  # name -> the task's running value (a device scalar)
+        # name -> a device counter the task increments inside its step; read and zeroed by pop()
+        self._counters: dict[str, torch.Tensor] = {}
 
     def record(self, rewards: torch.Tensor, dones: torch.Tensor, time_outs: torch.Tensor,
                nonfinite: torch.Tensor) -> None:
@@ -55,13 +57,22 @@ class EpisodeStats:
         for key, value in metrics.items():
             self._running[f"{group}/{key}"] = value
 
+    def count(self, name: str, counter: torch.Tensor) -> None:
+        """Report ``counter`` (a device scalar the task adds to, e.g. inside a captured step) as ``name`` at each
+        ``pop``, which zeroes it: counted for free in the step, read with the iteration's one host read."""
+        self._counters[name] = counter
+
     def pop(self) -> dict[str, float]:
-        # The running values come back with the totals, in the same device-to-host read.
-        names = list(self._running)
-        values = self.totals if not names else torch.cat(
-            (self.totals, torch.stack([self._running[k] for k in names]).double()))
-        count, ret, length, timeouts, nonfinite, *latest = values.tolist()
-        out = {"episodes": count, "nonfinite_resets": nonfinite, **dict(zip(names, latest))}
+        # The running values and counters come back with the totals, in the same device-to-host read.
+        names, counters = list(self._running), list(self._counters)
+        extra = [self._running[k] for k in names] + [self._counters[k] for k in counters]
+        values = self.totals if not extra else torch.cat((self.totals, torch.stack(extra).double()))
+        count, ret, length, timeouts, nonfinite, *rest = values.tolist()
+        latest, counted = rest[:len(names)], rest[len(names):]
+        for counter in self._counters.values():
+            counter.zero_()
+        out = {"episodes": count, "nonfinite_resets": nonfinite, **dict(zip(counters, counted)),
+               **dict(zip(names, latest))}
         if count > 0:
             out.update(
                 mean_episode_reward=ret / count,
@@ -88,6 +99,7 @@ class RslRlVecEnv(VecEnv):
         self.device = task.rl_device
         self.cfg = task.cfg
         self.stats = EpisodeStats(task.num_envs, task.rl_device)
+        self.stats.count("nonfinite_inputs", task.nonfinite_inputs_count)
         self._obs = self._to_tensordict(task.reset())
 
     @property

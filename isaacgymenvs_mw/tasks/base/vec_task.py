@@ -200,6 +200,8 @@ class VecTask(ObservationGroups):
         self._obs_out = torch.zeros_like(self.obs_buf)
         self._states_out = torch.zeros_like(self.states_buf)
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
+        self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
+        self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
         self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
         self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         self.execution = StepExecution(
@@ -357,6 +359,7 @@ class VecTask(ObservationGroups):
         self.extras["time_outs"] = (self.timeout_buf | self.success_buf).to(self.rl_device)
         self.extras["successes"] = self.success_buf.to(self.rl_device)
         self.extras["nonfinite_resets"] = self.nonfinite_buf
+        self.extras["nonfinite_inputs"] = self.nonfinite_inputs_buf
         # The next step rewrites the output buffers in place while the learner still holds this observation.
         obs = self._obs_out if self.obs_history is None else self.obs_history.out
         self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
@@ -413,9 +416,19 @@ class VecTask(ObservationGroups):
         self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
-        torch.clamp(self.obs_buf, -self.clip_obs, self.clip_obs, out=self._obs_out)
+        # The learner's last line of defence: a NaN or inf that escaped the blow-up reset (a term dividing by a zero
+        # distance, a quantity the reset does not refresh) would make one sample's loss NaN and, through one Adam
+        # step, every weight. Such values become 0 and their worlds are counted (extras["nonfinite_inputs"]).
+        bad = ~torch.isfinite(self.rew_buf) | ~torch.isfinite(self.obs_buf).all(dim=-1)
+        torch.nan_to_num(self.rew_buf, nan=0.0, posinf=0.0, neginf=0.0, out=self.rew_buf)
+        torch.clamp(torch.nan_to_num(self.obs_buf, nan=0.0, posinf=0.0, neginf=0.0), -self.clip_obs, self.clip_obs,
+                    out=self._obs_out)
         if self.num_states > 0:
-            torch.clamp(self.states_buf, -self.clip_obs, self.clip_obs, out=self._states_out)
+            bad |= ~torch.isfinite(self.states_buf).all(dim=-1)
+            torch.clamp(torch.nan_to_num(self.states_buf, nan=0.0, posinf=0.0, neginf=0.0), -self.clip_obs,
+                        self.clip_obs, out=self._states_out)
+        self.nonfinite_inputs_buf.copy_(bad)
+        self.nonfinite_inputs_count += bad.sum()
         # env.history: an env reset in this step returned its new episode's first frame (reset_buf set).
         if self.obs_history is not None:
             self.obs_history.push(self._obs_out, self.reset_buf != 0)

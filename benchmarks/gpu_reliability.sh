@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# On a machine with 4 GPUs: issue 43's measurements, one lane per GPU, each lane with its own kernel caches.
+#   phase A: GPU 0, 1: FrankaCubeLift seeds 1 and 2, 1500 iterations (shipped defaults), then test mode on 1024 envs;
+#            GPU 2: FrankaCubeStack, GPU 3: FrankaCubeLiftDepth, each signalled at 60 s (cold caches) and at 300 s.
+#   phase B: GPU 0: FrankaCubeLift signalled at 60 s (cold) and 300 s; GPU 1: the blow-up injection on FrankaCubeLift
+#            (benchmarks/nan_injection.py, 4096 envs); GPU 2, 3: throughput of Go1 and FrankaCubeLift, this tree and
+#            the one in BASE (a copy of the previous commit), one after the other on the same GPU.
+# Usage: bash benchmarks/gpu_reliability.sh A|B OUTDIR   (BASE=.base for phase B)
+set -uo pipefail
+phase=$1; out=$2
+mkdir -p "$out"
+lane() {  # lane GPU COMMAND...: run on one GPU with caches of its own
+  local g=$1; shift
+  (export CUDA_VISIBLE_DEVICES=$g WARP_CACHE_PATH=/tmp/cache$g/warp TORCHINDUCTOR_CACHE_DIR=/tmp/cache$g/inductor \
+          TRITON_CACHE_DIR=/tmp/cache$g/triton; "$@") > "$out/lane$g.txt" 2>&1 &
+}
+train_and_test() {  # TASK SEED
+  timeout --preserve-status 560 python3 train.py task="$1" seed="$2" headless=True runs_dir="$out/runs.$1.$2" \
+    > "$out/$1.seed$2.log" 2>&1
+  echo "$1 seed $2: rc=$? $(grep -E '^\[train\] done|skipped|restored|replaced|blew up|not finite' "$out/$1.seed$2.log" | cut -c1-200)"
+  ckpt=$(ls -t "$out"/runs."$1"."$2"/"$1"/*/model_*.pt 2>/dev/null | head -1)
+  [ -n "$ckpt" ] && python3 -c "
+import json, math, torch
+s = json.load(open('$(dirname "$ckpt")/summary.json'))
+w = torch.load('$ckpt', map_location='cpu', weights_only=False)
+fin = all(bool(torch.isfinite(v).all()) for g in ('actor_state_dict', 'critic_state_dict') for v in w[g].values() if v.is_floating_point())
+vl = [h['losses']['value'] for h in s['history']]
+print({k: s.get(k) for k in ('final_iteration', 'wall_time_s', 'env_steps_per_s', 'success', 'nonfinite_resets', 'nonfinite_inputs', 'skipped_optimizer_steps', 'learner_restores')}, 'weights_finite', fin, 'value_losses_finite', all(math.isfinite(v) for v in vl), 'max_value_loss', max(vl))"
+  [ -n "$ckpt" ] && timeout 200 python3 train.py task="$1" headless=True test=True checkpoint="$ckpt" num_envs=1024 2>&1 \
+    | grep "\[eval\] {" | cut -c1-300
+}
+if [ "$phase" = A ]; then
+  lane 0 train_and_test FrankaCubeLift 1
+  lane 1 train_and_test FrankaCubeLift 2
+  lane 2 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeStack 300 $out"
+  lane 3 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 300 $out"
+else
+  base=${BASE:-.base}
+  tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 20 2>/dev/null | tail -1; }
+  lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLift 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeLift 300 $out"
+  lane 1 python3 benchmarks/nan_injection.py --sim_device cuda:0 --num_envs 4096 --iterations 120
+  export -f tp
+  lane 2 bash -c "echo new:; tp Go1; cd $base && echo base:; PYTHONPATH=/tmp/site:\$PWD tp Go1"
+  lane 3 bash -c "echo new:; tp FrankaCubeLift; cd $base && echo base:; PYTHONPATH=/tmp/site:\$PWD tp FrankaCubeLift"
+fi
+wait
+for g in 0 1 2 3; do echo "== lane $g"; cat "$out/lane$g.txt" | grep -v '^\[it\|^\[isaac\|Warning\|warn' | tail -8 | cut -c1-1500; done

@@ -1,0 +1,222 @@
+"""How a ``train.py`` process stops on SIGTERM (``timeout``, schedulers' preemption) and SIGINT (Ctrl-C), from its
+first line to its last.
+
+One handler serves the whole process, installed by train.py before anything else is imported. What it does depends
+on what the process is doing when the signal comes:
+
+* **starting** (composing the config, building the model, compiling Warp's kernels) or **evaluating**: nothing
+  exists that a stop could lose, so the handler raises ``StopRequested`` where the signal lands and train.py ends
+  the process with one line and the signal's status (143 for SIGTERM);
+* **training** (``StopProtocol.training``): it only records the signal on the runner, which stops at its next env
+  step, saves ``model_<it>_interrupted.pt`` and writes summary.json. Raising inside library code (a compiled step, a
+  CUDA graph, TensorBoard's queue) is how a stopped run could lose both.
+
+A library loaded into the process can replace the handler behind Python's back: native code calling ``sigaction``
+(Python's own view, ``signal.getsignal``, then still shows the old one) or Python code calling ``signal.signal``.
+On a GPU both SIGTERM and SIGINT were taken over by native code while the post-physics step compiled (torch.compile
+with Triton, whose LLVM registers its own handlers for them), and a signal in that window ended the run without its
+stop line, checkpoint or summary. Two guards: a watchdog thread reads the C-level handler every
+``WATCH_INTERVAL_S`` and writes ours back with ``sigaction`` the moment it differs (any thread may); and the runner
+calls ``reassert`` once per iteration, which also catches a replacement made through Python, puts the handler back
+and says once, in one line, what had replaced it (for native code: the library, from /proc/self/maps).
+
+Only the main thread handles signals; a process that never calls ``install`` (the package used as a library) gets
+the training behaviour for the duration of ``training`` and its own handlers back afterwards.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from typing import Any, Iterator
+
+SIGNALS = (signal.SIGTERM, signal.SIGINT)
+WATCH_INTERVAL_S = 0.05  # how long a replaced C-level handler can stay in place: 20 reads of 2 signals per second
+
+
+class StopRequested(KeyboardInterrupt):
+    """A stop asked for by a signal: raised where the signal lands while nothing can be lost, and by
+    ``Runner.learn`` between env steps while training. A KeyboardInterrupt, so that code which cleans up after Ctrl-C
+    cleans up after SIGTERM too."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+class StopProtocol:
+    """The process's SIGTERM / SIGINT handler and its phases (see the module docstring).
+
+    ``repeat_window_s``: a second SIGINT this long or longer after the first is a user insisting, and raises
+    KeyboardInterrupt at once even while training. ``timeout -s INT`` sends one signal to the process and one to its
+    process group within microseconds; both must count as one request. Repeated SIGTERMs are always ignored."""
+
+    def __init__(self, repeat_window_s: float = 1.0) -> None:
+        self.repeat_window_s = repeat_window_s
+        self.signum: int | None = None  # the first signal received
+        self._first_at = 0.0
+        self._runner: Any = None  # while training: the object whose ``stop_signal`` the handler sets
+        self._installed = False
+        self._native: dict[int, int | None] = {}  # the C-level handler address right after installing
+        self._handler = self._handle  # one bound method, so that signal.getsignal can be compared by identity
+        self._actions: dict[int, ctypes.Array] = {}  # the C-level struct sigaction of ours, to write back
+        self._taken: list[str] = []  # what the watchdog found in our place, reported once by ``reassert``
+        self._watchdog: threading.Thread | None = None
+
+    @property
+    def installed(self) -> bool:
+        return self._installed
+
+    def install(self) -> None:
+        """Handle SIGTERM and SIGINT from now on (main thread only; elsewhere nothing changes). SIGINT is handled
+        even where the process started with it ignored (a background job of a non-interactive shell)."""
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for signum in SIGNALS:
+            signal.signal(signum, self._handler)
+            self._native[signum] = native_handler(signum)
+            action = read_sigaction(signum)
+            if action is not None:
+                self._actions[signum] = action
+        self._installed = True
+        if self._actions and self._watchdog is None:
+            self._watchdog = threading.Thread(target=self._watch, name="stop-handler-watchdog", daemon=True)
+            self._watchdog.start()
+
+    def _watch(self) -> None:
+        """Put our C-level handler back wherever native code replaced it (see the module docstring)."""
+        while True:
+            time.sleep(WATCH_INTERVAL_S)
+            if not self._installed:
+                continue
+            for signum, action in self._actions.items():
+                current = native_handler(signum)
+                if current is not None and current != self._native.get(signum):
+                    _libc_sigaction()(signum, action, None)
+                    self._taken.append(f"{signal.Signals(signum).name} by native code "
+                                       f"(sigaction: {_describe_native(current)})")
+
+    def _handle(self, signum: int, frame) -> None:
+        if self.signum is None:
+            self.signum, self._first_at = signum, time.monotonic()
+            if self._runner is None:
+                raise StopRequested(signum)  # starting or evaluating: nothing to save, stop right here
+            self._runner.stop_signal = signum
+        elif signum == signal.SIGINT and time.monotonic() - self._first_at >= self.repeat_window_s:
+            raise KeyboardInterrupt()
+
+    @contextmanager
+    def training(self, runner: Any) -> Iterator[None]:
+        """While inside: a signal only sets ``runner.stop_signal``. A signal that came earlier and was not raised
+        (it landed where it was caught) is handed to the runner at once."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+        previous = None if self._installed else {s: signal.getsignal(s) for s in SIGNALS}
+        if previous is not None:
+            self.install()
+        self._runner = runner
+        if self.signum is not None and getattr(runner, "stop_signal", None) is None:
+            runner.stop_signal = self.signum
+        try:
+            yield
+        finally:
+            self._runner = None
+            if previous is not None:  # the package used as a library: the caller's handlers come back
+                for signum, handler in previous.items():
+                    signal.signal(signum, handler)
+                self._installed = False
+
+    def reassert(self) -> str | None:
+        """Put the handler back where something replaced it since ``install``; returns the one line that says what
+        had (None when nothing had). Cheap: two ``sigaction`` reads per signal, no GPU work."""
+        if not self._installed or threading.current_thread() is not threading.main_thread():
+            return None
+        found, self._taken = self._taken, []
+        for signum in SIGNALS:
+            python_side = signal.getsignal(signum)
+            native = native_handler(signum)
+            if python_side is not self._handler:
+                found.append(f"{signal.Signals(signum).name} by {_describe(python_side)} (through Python)")
+            elif native != self._native.get(signum):
+                found.append(f"{signal.Signals(signum).name} by native code (sigaction: {_describe_native(native)})")
+        if not found:
+            return None
+        self.install()
+        return ("[train] the stop handler had been replaced (" + "; ".join(found) + "); it is back, so a signal "
+                "still stops the run with its checkpoint and summary")
+
+
+def read_sigaction(signum: int) -> ctypes.Array | None:
+    """The process's whole C-level ``struct sigaction`` for ``signum`` (None where it cannot be read)."""
+    sigaction = _libc_sigaction()
+    if sigaction is None:
+        return None
+    buffer = ctypes.create_string_buffer(256)  # larger than any libc's struct sigaction
+    return buffer if sigaction(signum, None, buffer) == 0 else None
+
+
+def native_handler(signum: int) -> int | None:
+    """The address of the process's C-level handler for ``signum`` (0: default, 1: ignored), read with
+    ``sigaction``; None where it cannot be read (not Linux/glibc, or no libc found)."""
+    action = read_sigaction(signum)
+    return None if action is None else (ctypes.c_void_p.from_buffer(action).value or 0)  # sa_handler comes first
+
+
+_SIGACTION: list = []
+
+
+def _libc_sigaction():
+    if not _SIGACTION:
+        function = None
+        if sys.platform.startswith("linux"):
+            try:
+                libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+                function = libc.sigaction
+                function.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p]
+                function.restype = ctypes.c_int
+            except (OSError, AttributeError):
+                function = None
+        _SIGACTION.append(function)
+    return _SIGACTION[0]
+
+
+def _describe(handler) -> str:
+    if handler is signal.SIG_DFL:
+        return "the default action (the process dies)"
+    if handler is signal.SIG_IGN:
+        return "'ignore'"
+    if handler is None:
+        return "a handler not set from Python"
+    return f"{getattr(handler, '__module__', '?')}.{getattr(handler, '__qualname__', repr(handler))}"
+
+
+def _describe_native(address: int | None) -> str:
+    if address is None:
+        return "unreadable"
+    if address in (0, 1):
+        return "the default action, the process dies" if address == 0 else "ignored"
+    return f"a handler at {address:#x} in {_library_of(address)}"
+
+
+def _library_of(address: int) -> str:
+    """The file mapped at ``address`` in this process (Linux), to name the library that took a signal."""
+    try:
+        with open("/proc/self/maps") as maps:
+            for line in maps:
+                fields = line.split()
+                start, end = (int(x, 16) for x in fields[0].split("-"))
+                if start <= address < end:
+                    return fields[5] if len(fields) > 5 else "an anonymous mapping"
+    except (OSError, ValueError, IndexError):
+        pass
+    return "an unknown mapping"
+
+
+# The one protocol of a train.py process.
+PROCESS_STOP = StopProtocol()
