@@ -5,7 +5,9 @@
 #   phase B: GPU 0: FrankaCubeLift signalled at 60 s (cold) and 300 s; GPU 1: the blow-up injection on FrankaCubeLift
 #            (benchmarks/nan_injection.py, 4096 envs); GPU 2, 3: throughput of Go1 and FrankaCubeLift, this tree and
 #            the one in BASE (a copy of the previous commit), one after the other on the same GPU.
-# Usage: bash benchmarks/gpu_reliability.sh A|B OUTDIR   (BASE=.base for phase B)
+#   phase C: throughput against BASE on an idle machine; signals while the step compiles; a late one.
+#   phase D: phase C cut to 2 GPUs.
+# Usage: bash benchmarks/gpu_reliability.sh A|B|C|D OUTDIR   (BASE=.base for phases B and C)
 set -uo pipefail
 phase=$1; out=$2
 mkdir -p "$out"
@@ -34,6 +36,35 @@ if [ "$phase" = A ]; then
   lane 1 train_and_test FrankaCubeLift 2
   lane 2 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeStack 300 $out"
   lane 3 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 300 $out"
+elif [ "$phase" = C ]; then
+  # Throughput of this tree against BASE on an otherwise idle machine, side by side on the four GPUs, twice with
+  # the GPUs swapped; then the signals that land while the step compiles (cold caches) and one late in a long run.
+  base=${BASE:-.base}
+  tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 30 \
+           2>/dev/null | tail -1 | python3 -c "import json, sys; d = json.loads(sys.stdin.read()); print('$2', d['task'], \
+           round(d['ratio_vectask_over_physics'], 4), round(d['vectask_env_steps_per_s']), round(d['train_env_steps_per_s']))"; }
+  export -f tp
+  for swap in 0 1; do
+    (CUDA_VISIBLE_DEVICES=$swap tp FrankaCubeLift new) & (cd "$base" && CUDA_VISIBLE_DEVICES=$((1 - swap)) PYTHONPATH=/tmp/site:$PWD tp FrankaCubeLift base) &
+    (CUDA_VISIBLE_DEVICES=$((2 + swap)) tp Go1 new) & (cd "$base" && CUDA_VISIBLE_DEVICES=$((3 - swap)) PYTHONPATH=/tmp/site:$PWD tp Go1 base) &
+    wait
+  done | tee "$out/throughput.txt"
+  lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out"
+  lane 1 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 50 $out/b"
+  lane 2 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 60 $out"
+  lane 3 bash -c "bash benchmarks/gpu_signal.sh FrankaCubeLift 300 $out max_iterations=3000"
+elif [ "$phase" = D ]; then
+  # Phase C on a machine with 2 GPUs: one throughput pair per task (this tree and BASE side by side, the GPUs
+  # swapped between the tasks), then FrankaCubeStack signalled while its step compiles and FrankaCubeLift late.
+  base=${BASE:-.base}
+  tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 30 \
+           2>/dev/null | tail -1 | python3 -c "import json, sys; d = json.loads(sys.stdin.read()); print('$2', d['task'], \
+           round(d['ratio_vectask_over_physics'], 4), round(d['vectask_env_steps_per_s']), round(d['train_env_steps_per_s']))"; }
+  export -f tp
+  { (CUDA_VISIBLE_DEVICES=0 tp FrankaCubeLift new) & (cd "$base" && CUDA_VISIBLE_DEVICES=1 PYTHONPATH=/tmp/site:$PWD tp FrankaCubeLift base) & wait
+    (CUDA_VISIBLE_DEVICES=1 tp Go1 new) & (cd "$base" && CUDA_VISIBLE_DEVICES=0 PYTHONPATH=/tmp/site:$PWD tp Go1 base) & wait; } | tee "$out/throughput.txt"
+  lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out"
+  lane 1 bash -c "bash benchmarks/gpu_signal.sh FrankaCubeLift 240 $out max_iterations=3000"
 else
   base=${BASE:-.base}
   tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 20 2>/dev/null | tail -1; }
@@ -44,4 +75,4 @@ else
   lane 3 bash -c "echo new:; tp FrankaCubeLift; cd $base && echo base:; PYTHONPATH=/tmp/site:\$PWD tp FrankaCubeLift"
 fi
 wait
-for g in 0 1 2 3; do echo "== lane $g"; cat "$out/lane$g.txt" | grep -v '^\[it\|^\[isaac\|Warning\|warn' | tail -8 | cut -c1-1500; done
+for g in 0 1 2 3; do [ -f "$out/lane$g.txt" ] || continue; echo "== lane $g"; cat "$out/lane$g.txt" | grep -v '^\[it\|^\[isaac\|Warning\|warn' | tail -8 | cut -c1-1500; done

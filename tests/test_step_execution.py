@@ -334,3 +334,33 @@ shutdown_compile_workers()
                          env={**os.environ, "TORCHINDUCTOR_COMPILE_THREADS": "2"})
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-2:] == ["True", "True"], out.stdout
+
+
+def test_the_stop_watchdog_leaves_sigterm_ignored_while_the_compile_workers_start():
+    """train.py's stop watchdog writes the handler back wherever the C-level disposition changes; while the compile
+    workers start (a slow start here: 0.5 s, ten watchdog rounds) SIGTERM must stay ignored, or the workers start
+    killable and a group-wide SIGTERM hangs the run in its first step (seen on an H200), and the handler comes back
+    after."""
+    code = """
+import signal, time
+from torch._inductor import config
+from torch._inductor import async_compile
+from torch._inductor.async_compile import AsyncCompile
+from isaacgymenvs_mw.tasks.base import step_execution
+from isaacgymenvs_mw.utils.stop import PROCESS_STOP, native_handler
+PROCESS_STOP.install()
+seen = []
+def slow_pool():
+    time.sleep(0.5)
+    seen.append(native_handler(signal.SIGTERM))
+AsyncCompile.process_pool = staticmethod(slow_pool)
+config.worker_start_method = "subprocess"
+async_compile.get_compile_threads = lambda: 2
+step_execution.start_compile_workers_ignoring_sigterm()
+time.sleep(0.2)
+print(seen == [1], signal.getsignal(signal.SIGTERM) is PROCESS_STOP._handler,
+      native_handler(signal.SIGTERM) == PROCESS_STOP._native[signal.SIGTERM], PROCESS_STOP.reassert())
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["True", "True", "True", "None"], out.stdout

@@ -67,6 +67,8 @@ class StopProtocol:
         self._actions: dict[int, ctypes.Array] = {}  # the C-level struct sigaction of ours, to write back
         self._taken: list[str] = []  # what the watchdog found in our place, reported once by ``reassert``
         self._watchdog: threading.Thread | None = None
+        self._watch_lock = threading.Lock()
+        self._watch_paused = 0  # > 0 while code of ours changes the disposition on purpose (watchdog_paused)
 
     @property
     def installed(self) -> bool:
@@ -92,14 +94,28 @@ class StopProtocol:
         """Put our C-level handler back wherever native code replaced it (see the module docstring)."""
         while True:
             time.sleep(WATCH_INTERVAL_S)
-            if not self._installed:
-                continue
-            for signum, action in self._actions.items():
-                current = native_handler(signum)
-                if current is not None and current != self._native.get(signum):
-                    _libc_sigaction()(signum, action, None)
-                    self._taken.append(f"{signal.Signals(signum).name} by native code "
-                                       f"(sigaction: {_describe_native(current)})")
+            with self._watch_lock:
+                if not self._installed or self._watch_paused:
+                    continue
+                for signum, action in self._actions.items():
+                    current = native_handler(signum)
+                    if current is not None and current != self._native.get(signum):
+                        _libc_sigaction()(signum, action, None)
+                        self._taken.append(f"{signal.Signals(signum).name} by native code "
+                                           f"(sigaction: {_describe_native(current)})")
+
+    @contextmanager
+    def watchdog_paused(self) -> Iterator[None]:
+        """While inside, the watchdog leaves the disposition alone: for code of ours that changes it on purpose
+        (Inductor's compile workers start with SIGTERM ignored, see tasks/base/step_execution.py; a watchdog that
+        wrote the handler back in that window let them start killable, and a signal then hung the run)."""
+        with self._watch_lock:
+            self._watch_paused += 1
+        try:
+            yield
+        finally:
+            with self._watch_lock:
+                self._watch_paused -= 1
 
     def _handle(self, signum: int, frame) -> None:
         if self.signum is None:

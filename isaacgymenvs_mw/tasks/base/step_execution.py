@@ -36,6 +36,7 @@ from typing import Callable
 import torch
 
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 
 # Eager steps before the capture: the first compiles, the next ones let lazily allocated buffers settle.
 WARMUP_STEPS = 3
@@ -244,11 +245,12 @@ def start_compile_workers_ignoring_sigterm() -> None:
     if (start_pool is None or getattr(config, "worker_start_method", None) != "subprocess"
             or get_compile_threads() <= 1 or threading.current_thread() is not threading.main_thread()):
         return
-    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    try:
-        start_pool()  # cached by torch: the pool the compile then uses
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    with PROCESS_STOP.watchdog_paused():  # it would otherwise put the handler back while the workers start
+        previous = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        try:
+            start_pool()  # cached by torch: the pool the compile then uses
+        finally:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _compile_wanted(value, graphs_wanted: bool) -> bool:
