@@ -39,6 +39,10 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     check_run_config(cfg)
     rank = int(os.getenv("RANK", "0"))
     seed = seed_run(cfg, rank)
+    if int(cfg.seed) == -1:  # drawn: told, and recorded in the run's config.yaml, so that the run can be repeated
+        cfg.seed = seed - rank  # the base seed; seed_run adds the rank
+        if rank == 0:
+            print(f"[train] seed=-1 drew seed {cfg.seed} (give seed={cfg.seed} to repeat this run)", flush=True)
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     if not cfg.test:
         check_logger(train_cfg)
