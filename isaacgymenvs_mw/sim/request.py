@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import Mapping
 
 from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, ModelRequest, SceneAsset,
-                                          SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names, match_joint_numbers,
-                                          match_joint_values, movable_joint_names)
+                                          SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names,
+                                          match_joint_numbers, match_joint_values, movable_joint_names)
 from isaacgymenvs_mw.sim.cameras import camera_specs
 from isaacgymenvs_mw.utils.config import check_entry, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
