@@ -221,6 +221,8 @@ def test_a_plain_number_is_every_joints_value():
     drives = describe(*new_request(cfg))["drives"]
     assert len(drives) == 12 and {d[1] for d in drives.values()} == {35.5}
     assert match_joint_numbers(2, NAMES[:2], "k") == {"LF_HAA": 2.0, "LF_HFE": 2.0}
+    with pytest.raises(ConfigError, match=r"^k='position' is invalid: give a mapping \{joint or regex: value\}$"):
+        match_joint_values("position", NAMES, "k")  # not a number: no table of every joint (defaultDriveMode is one)
 
 
 @pytest.mark.parametrize("value, message", [

@@ -199,8 +199,7 @@ def match_joint_values(
 
     A pattern selects every joint whose whole name it matches (``name_matches``: ``".*_HAA"`` -> all *_HAA joints).
     A key that is a joint's own name wins over the other patterns; among patterns the first in YAML order wins. A
-    pattern that selects no joint is an error naming the key. A plain number stands for every joint (``stiffness:
-    20`` is ``{'.*': 20}``): the command line's ``task.env.control.stiffness=20`` replaces the YAML's mapping.
+    pattern that selects no joint is an error naming the key, and so is a value that is not a mapping.
     """
     patterns = joint_table(patterns, key)
     selected = {pattern: set(name_matches(pattern, joint_names, key, "joints")) for pattern in patterns}
@@ -219,24 +218,27 @@ def match_joint_values(
     return resolved
 
 
-def joint_table(patterns: object, key: str) -> dict[str, object]:
-    """A per-joint YAML value as a {pattern: value} dict: a mapping as given, a plain number as every joint's
-    value, nothing as {}; anything else (text, a list) is an error naming ``key``."""
+def joint_table(patterns: object, key: str, one_for_all: bool = False) -> dict[str, object]:
+    """A per-joint YAML value as a {pattern: value} dict: a mapping as given, nothing as {}, and with
+    ``one_for_all`` a plain number as every joint's value; anything else (text, a list) is an error naming ``key``."""
     if patterns is None:
         return {}
     if hasattr(patterns, "items"):
         return dict(patterns)
-    if isinstance(patterns, (int, float)) and not isinstance(patterns, bool):
+    number = isinstance(patterns, (int, float)) and not isinstance(patterns, bool)
+    if one_for_all and number:
         return {".*": patterns}
-    raise ConfigError(f"{key}={patterns!r} is invalid: give a mapping {{joint or regex: value}}, e.g. "
-                      f"{{'.*': 20.0}}, or one number for every joint")
+    also = ", e.g. {'.*': 20.0}, or one number for every joint" if one_for_all else ""
+    raise ConfigError(f"{key}={patterns!r} is invalid: give a mapping {{joint or regex: value}}{also}")
 
 
 def match_joint_numbers(patterns: Mapping[str, object] | float | None, joint_names: Sequence[str], key: str,
                         default: float | None = None, low: float | None = None) -> dict[str, float]:
     """``match_joint_values`` for a per-joint number (gains, armature, limits, angles): each value must be a
-    number (>= ``low`` when given); a bad one is an error naming ``key``, the pattern and the value."""
-    table = joint_table(patterns, key)
+    number (>= ``low`` when given); a bad one is an error naming ``key``, the pattern and the value. A plain number
+    stands for every joint (``stiffness: 20`` is ``{'.*': 20}``): the command line's
+    ``task.env.control.stiffness=20`` replaces the YAML's mapping, and means that."""
+    table = joint_table(patterns, key, one_for_all=True)
     single = not hasattr(patterns, "items")  # a plain number: its key is the whole key, as the user typed it
     for pattern, value in table.items():
         real_number(value, key if single else f"{key}[{pattern!r}]", low=low)
