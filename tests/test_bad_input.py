@@ -29,16 +29,23 @@ def doc_rows() -> list[tuple[str, str]]:
 
 
 def prepare(tmp: Path) -> None:
-    """The files the rows name: an empty task YAML and one without name:, checkpoints that are not."""
+    """The files the rows name: task YAMLs that are empty, lack name: or are not YAML; checkpoints that are not."""
     (tmp / "cfg" / "task").mkdir(parents=True)
     (tmp / "cfg" / "train").mkdir()
     (tmp / "cfg" / "task" / "Empty.yaml").write_text("")
     (tmp / "cfg" / "task" / "Unnamed.yaml").write_text("env:\n  numEnvs: 4\n")
-    for name in ("Empty", "Unnamed"):
+    # YAML syntax errors: an unclosed list (PyYAML's ParserError), a tab indenting a line (its ScannerError)
+    (tmp / "cfg" / "task" / "Broken.yaml").write_text("name: Cartpole\nenv:\n  numEnvs: 4\n  resetDist: [1.0, 2.0\n"
+                                                      "  maxEffort: 400.0\n")
+    (tmp / "cfg" / "task" / "Tabbed.yaml").write_text("name: Cartpole\nenv:\n\tnumEnvs: 4\n")
+    for name in ("Empty", "Unnamed", "Broken", "Tabbed"):
         (tmp / "cfg" / "train" / f"{name}PPO.yaml").write_text((REPO_ROOT / "cfg/train/CartpolePPO.yaml").read_text())
     torch.save({"actor_state_dict": {}, "iter": 1}, tmp / "whole.pt")
     (tmp / "truncated.pt").write_bytes((tmp / "whole.pt").read_bytes()[:100])
     torch.save({"notes": "not a policy"}, tmp / "notes.pt")
+    (tmp / "run").mkdir()  # a run directory given as the checkpoint: the message names its latest model_*.pt
+    for name in ("model_9.pt", "model_10.pt", "model_2.pt"):
+        (tmp / "run" / name).write_bytes(b"")
 
 
 def run_row(args: str, tmp: Path) -> subprocess.CompletedProcess:

@@ -21,7 +21,7 @@ from omegaconf import OmegaConf
 from conftest import TESTS_DIR
 from isaacgymenvs_mw.sim import build_model, request_from_config
 from isaacgymenvs_mw.sim import builder as builder_module
-from isaacgymenvs_mw.sim.builder import match_body_names, match_joint_values, name_matches
+from isaacgymenvs_mw.sim.builder import match_body_names, match_joint_numbers, match_joint_values, name_matches
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -207,6 +207,37 @@ def test_a_substring_pattern_selects_nothing_and_says_so():
         match_body_names(["FOOT"], NAMES, "k")
     with pytest.raises(ConfigError, match=r"k: '\(' is not a valid regular expression"):
         name_matches("(", NAMES, "k", "joints")
+
+
+def test_a_plain_number_is_every_joints_value():
+    """task.env.control.stiffness=20 on the command line replaces Go1's {'.*': 20.0} with a number: it means every
+    joint, so the request equals the one the YAML's own mapping gives (and a different number changes every gain)."""
+    cfg = task_cfg("Go1")
+    assert cfg["env"]["control"]["stiffness"] == {".*": 20.0}  # the expectation below is the shipped mapping's
+    expected = describe(*new_request(cfg))["drives"]
+    cfg["env"]["control"]["stiffness"] = 20
+    assert describe(*new_request(cfg))["drives"] == expected
+    cfg["env"]["control"]["stiffness"] = 35.5
+    drives = describe(*new_request(cfg))["drives"]
+    assert len(drives) == 12 and {d[1] for d in drives.values()} == {35.5}
+    assert match_joint_numbers(2, NAMES[:2], "k") == {"LF_HAA": 2.0, "LF_HFE": 2.0}
+    with pytest.raises(ConfigError, match=r"^k='position' is invalid: give a mapping \{joint or regex: value\}$"):
+        match_joint_values("position", NAMES, "k")  # not a number: no table of every joint (defaultDriveMode is one)
+
+
+@pytest.mark.parametrize("value, message", [
+    ("abc", "k='abc' is invalid: give a mapping {joint or regex: value}, e.g. {'.*': 20.0}, or one number for "
+            "every joint"),
+    ([1.0, 2.0], "k=[1.0, 2.0] is invalid: give a mapping"),
+    (True, "k=True is invalid: give a mapping"),
+    ({".*_HAA": 1.0, "LF_.*": "abc"}, "k['LF_.*']='abc' is invalid: give a number >= 0.0"),
+    ({".*": -1.0}, "k['.*']=-1.0 is invalid: give a number >= 0.0"),
+    (-1, "k=-1 is invalid: give a number >= 0.0"),
+])
+def test_a_per_joint_number_that_is_not_one_is_refused_naming_the_key(value, message):
+    with pytest.raises(ConfigError) as err:
+        match_joint_numbers(value, NAMES, "k", low=0.0)
+    assert str(err.value).startswith(message), str(err.value)
 
 
 def _record() -> None:

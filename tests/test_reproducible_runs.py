@@ -1,4 +1,5 @@
-"""deterministic=True gives bit-identical training on one device, and `logger: wandb` logs what TensorBoard logs.
+"""deterministic=True gives bit-identical training on one device, and `logger: wandb` logs what TensorBoard logs;
+a drawn seed (seed=-1) is told and recorded, so that a run can be repeated.
 
 Three short Cartpole trainings on the CPU: two with seed 7 and deterministic=True (the second logging to W&B through
 a stand-in `wandb` module that records every call: the real package is not a test dependency), one with seed 8.
@@ -10,6 +11,10 @@ read back from its events file with TensorBoard's own reader.
 from __future__ import annotations
 
 import importlib.machinery
+import json
+import os
+import re
+import subprocess
 import sys
 import types
 from pathlib import Path
@@ -17,9 +22,10 @@ from pathlib import Path
 import mujoco_warp
 import pytest
 import torch
+from omegaconf import OmegaConf
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from conftest import CPU_ARGS
+from conftest import CPU_ARGS, REPO_ROOT
 from isaacgymenvs_mw.learning import loggers
 from isaacgymenvs_mw.learning.launch import build_task, run
 from isaacgymenvs_mw.utils.config import compose_config
@@ -147,3 +153,20 @@ def test_wandb_without_the_package_names_the_key(tmp_path, run_args, monkeypatch
     with pytest.raises(ModuleNotFoundError, match=r"train\.runner\.logger=wandb needs the wandb package"):
         run(compose_config(["task=Cartpole", "num_envs=2", "train.runner.logger=wandb", *run_args]))
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_drawn_seed_is_printed_and_written_to_config_yaml(tmp_path):
+    """seed=-1 draws a seed: the console names it, and the run's config.yaml holds it (not -1), equal to the seed the
+    run used (summary.json's, which set_seed returned), so that seed=<it> repeats the run."""
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", *CPU_ARGS, "num_envs=4", "max_iterations=1",
+           "seed=-1", f"runs_dir={tmp_path}"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    drawn = re.findall(r"^\[train\] seed=-1 drew seed (\d+) \(give seed=(\d+) to repeat this run\)$", proc.stdout,
+                       re.MULTILINE)
+    assert len(drawn) == 1 and drawn[0][0] == drawn[0][1], proc.stdout
+    (config,) = tmp_path.glob("Cartpole/*/config.yaml")
+    saved = OmegaConf.load(config).seed
+    used = json.loads((config.parent / "summary.json").read_text())["seed"]
+    assert saved == used == int(drawn[0][0]) and saved >= 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import re
 import signal
 import time
 from pathlib import Path
@@ -38,6 +39,10 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     check_run_config(cfg)
     rank = int(os.getenv("RANK", "0"))
     seed = seed_run(cfg, rank)
+    if int(cfg.seed) == -1:  # drawn: told, and recorded in the run's config.yaml, so that the run can be repeated
+        cfg.seed = seed - rank  # the base seed; seed_run adds the rank
+        if rank == 0:
+            print(f"[train] seed=-1 drew seed {cfg.seed} (give seed={cfg.seed} to repeat this run)", flush=True)
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     if not cfg.test:
         check_logger(train_cfg)
@@ -235,6 +240,12 @@ def _read_checkpoint(cfg: DictConfig) -> tuple[Path | None, dict | None]:
             raise ConfigError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
         return None, None
     path = Path(str(cfg.checkpoint)).expanduser().resolve()
+    if path.is_dir():  # a run directory: name the file wanted, and the run's latest when it holds any
+        numbered = ((f, re.fullmatch(r"model_(\d+)", f.stem)) for f in path.glob("model_*.pt"))
+        iteration = {f: int(m.group(1)) for f, m in numbered if m}  # by number: model_9 comes before model_10
+        hint = f"its latest: checkpoint={max(iteration, key=iteration.get)}" if iteration else "none is in it"
+        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is a directory; give a model_*.pt file written by "
+                          f"a training run ({hint})")
     if not path.is_file():
         raise MissingFileError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
     try:  # before the simulator is built, which can take minutes

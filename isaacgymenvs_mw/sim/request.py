@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Mapping
 
 from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, ModelRequest, SceneAsset,
-                                          SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names, match_joint_values,
-                                          movable_joint_names)
+                                          SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names,
+                                          match_joint_numbers, match_joint_values, movable_joint_names)
 from isaacgymenvs_mw.sim.cameras import camera_specs
-from isaacgymenvs_mw.utils.config import check_entry
+from isaacgymenvs_mw.utils.config import check_entry, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 
 # Every key the task YAML's `sim` section may hold (docs/config.md, "sim"); any other is a typo or a key of another
@@ -74,16 +74,15 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
         collapse_fixed_joints=collapse,
         self_collisions=bool(asset.get("selfCollisions", False)),
         drives=joint_drives(control, joints, actuated_joints(spec), torque_speed),
-        armature=match_joint_values(asset.get("armature"), joints, "env.asset.armature"),
-        joint_damping=match_joint_values(asset.get("jointDamping"), joints, "env.asset.jointDamping"),
+        armature=match_joint_numbers(asset.get("armature"), joints, "env.asset.armature", low=0.0),
+        joint_damping=match_joint_numbers(asset.get("jointDamping"), joints, "env.asset.jointDamping", low=0.0),
         ground=ground,
         base_init_pos=base_pos,
         base_init_quat=base_quat,
         contact_bodies=match_body_names(asset.get("contactBodies"), [b.name for b in spec.bodies],
                                         "env.asset.contactBodies"),
         options=solver_options(sim),
-        effort_limits={j: float(v) for j, v in match_joint_values(
-            control.get("effortLimit"), joints, "env.control.effortLimit").items()},
+        effort_limits=match_joint_numbers(control.get("effortLimit"), joints, "env.control.effortLimit", low=0.0),
         gear=dict(control.get("gear") or {}),
         ctrl_range=dict(control.get("ctrlRange") or {}),
         keep_asset_contacts=keep_contacts,
@@ -217,10 +216,10 @@ def joint_drives(control: Mapping, joints: list[str], owned: Mapping[str, str],
     force at its continuous limit."""
     explicit = match_joint_values(control.get("driveMode"), joints, "env.control.driveMode")
     default_mode = str(control.get("defaultDriveMode", "none"))
-    stiffness = match_joint_values(control.get("stiffness"), joints, "env.control.stiffness", 0.0)
-    damping = match_joint_values(control.get("damping"), joints, "env.control.damping", 0.0)
+    stiffness = match_joint_numbers(control.get("stiffness"), joints, "env.control.stiffness", 0.0, low=0.0)
+    damping = match_joint_numbers(control.get("damping"), joints, "env.control.damping", 0.0, low=0.0)
     return {
-        j: JointDrive(str(explicit.get(j, default_mode)), float(stiffness[j]), float(damping[j]),
+        j: JointDrive(str(explicit.get(j, default_mode)), stiffness[j], damping[j],
                       torque_speed[j][1] if j in torque_speed else None)
         for j in joints if j not in owned or j in explicit
     }
@@ -235,8 +234,9 @@ def check_sim_keys(sim: Mapping) -> None:
 
 
 def sim_dt(sim: Mapping) -> float:
-    """``sim.dt``, the physics timestep in seconds (the one place it is read)."""
-    return float(sim.get("dt", SolverOptions().dt))
+    """``sim.dt``, the physics timestep in seconds (the one place it is read, and checked: the randomiser reads it
+    before the model is built)."""
+    return real_number(sim.get("dt", SolverOptions().dt), "sim.dt", 0.0, low_open=True)
 
 
 def solver_options(sim: Mapping) -> SolverOptions:
@@ -268,9 +268,9 @@ def torque_speed_limits(cfg: Mapping | None, joints: list[str]) -> TorqueSpeed:
     for required in ("saturationTorque", "velocityLimit"):
         if not cfg.get(required):
             raise ConfigError(f"{key}.{required} is required ({{joint pattern: value}})")
-    sat = match_joint_values(cfg["saturationTorque"], joints, f"{key}.saturationTorque")
-    speed = match_joint_values(cfg["velocityLimit"], joints, f"{key}.velocityLimit")
-    limit = match_joint_values(cfg.get("torqueLimit"), joints, f"{key}.torqueLimit")
+    sat = match_joint_numbers(cfg["saturationTorque"], joints, f"{key}.saturationTorque")
+    speed = match_joint_numbers(cfg["velocityLimit"], joints, f"{key}.velocityLimit")
+    limit = match_joint_numbers(cfg.get("torqueLimit"), joints, f"{key}.torqueLimit")
     out = {}
     for j in sat:
         if j not in speed:

@@ -12,6 +12,7 @@ import os
 import re
 import sys
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Callable, Iterator
 
 from isaacgymenvs_mw.utils.errors import ConfigError, one_line
@@ -34,6 +35,9 @@ def input_error_message(err: BaseException) -> str | None:
 
     if isinstance(err, ConfigError):
         return one_line(str(err))
+    syntax = _yaml_syntax_error(err)
+    if syntax is not None:
+        return syntax
     if isinstance(err, MissingConfigException):
         found = re.search(r"Could not find '([^']+)'", str(err))
         missing = found.group(1) if found else str(err.missing_cfg_file)
@@ -56,6 +60,30 @@ def input_error_message(err: BaseException) -> str | None:
         key = getattr(err, "full_key", None) or next(iter(re.findall(r"full_key: (\S+)", str(err))), None)
         return f"{key}: {message}" if key else one_line(str(err))
     return None
+
+
+def _yaml_syntax_error(err: BaseException) -> str | None:
+    """A YAML file Hydra could not parse (PyYAML's ScannerError, ParserError, ...: raised bare, or as the cause of
+    Hydra's error) told as the file, line and column, and what PyYAML expected; None for any other error.
+
+    A file of a config group (``task/Broken.yaml``) is named by the override that chose it too (``task=Broken``)."""
+    import yaml
+
+    while err is not None and not isinstance(err, yaml.MarkedYAMLError):
+        err = err.__cause__ or err.__context__
+    if err is None:
+        return None
+    mark = err.problem_mark or err.context_mark
+    if mark is None:
+        return f"not valid YAML: {one_line(str(err))}"
+    path = Path(mark.name)
+    chose = f"{path.parent.name}={path.stem}: " if path.parent.name in ("task", "train") else ""
+    where = ""
+    if err.context and err.context_mark is not None and err.context_mark is not mark:
+        where = f" ({err.context} at line {err.context_mark.line + 1}, column {err.context_mark.column + 1})"
+    problem = err.problem or err.context or "a syntax error"
+    return (f"{chose}{mark.name}, line {mark.line + 1}, column {mark.column + 1}: not valid YAML: "
+            f"{problem}{where}")
 
 
 @contextmanager

@@ -134,8 +134,8 @@ def real_number(value, key: str, low: float | None = None, high: float | None = 
         ok = value <= high
     if not ok:
         bounds = [f"{'>' if low_open else '>='} {low}" if low is not None else "", f"<= {high}" if high else ""]
-        wanted = " and ".join(b for b in bounds if b) or "finite"
-        raise ConfigError(f"{key}={value!r} is invalid: give a number {wanted}")
+        wanted = " and ".join(b for b in bounds if b)
+        raise ConfigError(f"{key}={value!r} is invalid: give {f'a number {wanted}' if wanted else 'a finite number'}")
     return float(value)
 
 

@@ -27,6 +27,7 @@ from isaacgymenvs_mw.sim import (
     generate_terrain,
     ground_geoms,
     heightfield_grid,
+    match_joint_numbers,
     match_joint_values,
     parse_terrain_config,
 )
@@ -160,7 +161,7 @@ class LeggedTask(VecTask):
         names = self.sim.dof_names
         if len(names) != self.num_actions:
             raise ConfigError(f"env.numActions={self.num_actions} but the asset has {len(names)} joints: {names}")
-        angles = match_joint_values(env["defaultJointAngles"], names, "env.defaultJointAngles")
+        angles = match_joint_numbers(env["defaultJointAngles"], names, "env.defaultJointAngles")
         missing = [n for n in names if n not in angles]
         if missing:
             raise ConfigError(f"env.defaultJointAngles gives no angle for joints {missing}; joints: {names}")
