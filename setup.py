@@ -20,6 +20,8 @@ INSTALL_REQUIRES = [
     # capture_video: mp4 through the ffmpeg binary that imageio-ffmpeg's wheels ship
     "imageio>=2.30,<3",
     "imageio-ffmpeg>=0.5,<1",
+    # a sweep (train.py -m) draws its jobs' learning curves as a PNG
+    "matplotlib>=3.7",
 ]
 
 setup(
@@ -29,7 +31,7 @@ setup(
     packages=find_packages(include=["isaacgymenvs_mw", "isaacgymenvs_mw.*"]),
     python_requires=">=3.10,<3.13",
     install_requires=INSTALL_REQUIRES,
-    # onnxruntime: the exported-policy test; matplotlib: benchmarks/learning_curve.py (and its test)
-    extras_require={"test": ["pytest>=7", "onnxruntime>=1.17", "matplotlib>=3.7"], "plot": ["matplotlib>=3.7"]},
+    # onnxruntime: the exported-policy test
+    extras_require={"test": ["pytest>=7", "onnxruntime>=1.17"]},
     license="BSD-3-Clause",
 )

@@ -2,6 +2,8 @@
 
 python train.py task=Cartpole test=True checkpoint=runs/Cartpole/<stamp>/model_60.pt   evaluates a policy.
 python train.py --config-dir /my/project/cfg task=MyTask task_module=my_tasks   a task from outside the repository.
+python train.py -m task=FrankaCubeLift seed=1,2,3,4   a sweep: the jobs side by side on the GPUs, then their table and
+                                                      curves under runs/sweeps/ (isaacgymenvs_mw/learning/sweep.py).
 
 A bad value (ours or one Hydra refuses) ends the run with one line on stderr and exit status 2; ``verbose=True`` or
 HYDRA_FULL_ERROR=1 shows the traceback as well.
@@ -64,8 +66,20 @@ def _stopped(err: KeyboardInterrupt, evaluating: bool = False) -> None:
     os._exit(128 + signum)
 
 
+def sweep(argv: list[str]) -> None:
+    """``python train.py -m ...``: one train.py process per job, side by side on the GPUs (learning/sweep.py)."""
+    from pathlib import Path
+
+    from isaacgymenvs_mw.learning.sweep import run_sweep
+
+    with report_input_errors(), exit_on_input_error():
+        sys.exit(run_sweep(argv, Path(__file__).resolve()))
+
+
 if __name__ == "__main__":
     try:
+        if {"-m", "--multirun"} & set(sys.argv[1:]):
+            sweep([arg for arg in sys.argv[1:] if arg not in ("-m", "--multirun")])
         with report_input_errors():
             main()
     except KeyboardInterrupt as stop:  # while Hydra composed the config, before main() began

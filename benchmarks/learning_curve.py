@@ -10,7 +10,7 @@ time, not the process wall time: start-up (kernel compilation, model build) is r
   python benchmarks/learning_curve.py runs/Ant/*/summary.json --labels seed42 seed7 --out docs/ant_curve.png
   python benchmarks/learning_curve.py a/summary.json b/summary.json --key Episode/terrain_level --out terrain.png
 
-Needs matplotlib (``pip install -e ".[plot]"``).
+A sweep (``python train.py -m ...``) draws the same curves for its jobs by itself (``sweep.png``).
 """
 
 from __future__ import annotations
@@ -19,49 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
-
-def curve(summary: dict, key: str) -> tuple[list[float], list[float]]:
-    """(training time s, value) for every iteration that reported ``key``."""
-    xs, ys = [], []
-    for record in summary.get("history", []):
-        if record.get(key) is not None:
-            xs.append(float(record["time_s"]))
-            ys.append(float(record[key]))
-    return xs, ys
-
-
-AXIS_LABELS = {"mean_episode_reward": "mean episode reward", "mean_episode_length": "mean episode length (steps)",
-               "Episode/terrain_level": "mean terrain level"}
-
-
-def plot(summaries: list[dict], labels: list[str], out: Path, keys: list[str]) -> None:
-    """One panel per history key, one line per run."""
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only, no display
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(len(keys), 1, figsize=(7, 3.2 * len(keys)), sharex=True, squeeze=False)
-    for summary, label in zip(summaries, labels):
-        for ax, key in zip(axes[:, 0], keys):
-            xs, ys = curve(summary, key)
-            ax.plot(xs, ys, label=label, linewidth=1.5)
-    for ax, key in zip(axes[:, 0], keys):
-        ax.set_ylabel(AXIS_LABELS.get(key, key))
-    axes[-1, 0].set_xlabel("training time (s): rollouts + updates")
-    first = summaries[0]
-    startup = float(first.get("wall_time_s", 0.0)) - float(first.get("train_time_s", 0.0))
-    title = (f"{first.get('task', '?')}: {first.get('num_envs', '?')} envs on {first.get('device', '?')}\n"
-             f"start-up {startup:.0f} s before the first iteration")
-    axes[0, 0].set_title(title, fontsize=9)
-    for ax in axes[:, 0]:
-        ax.grid(True, alpha=0.3)
-    if len(summaries) > 1:
-        axes[0, 0].legend(fontsize=8)
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+from isaacgymenvs_mw.learning.sweep import curve, plot_curves as plot  # noqa: F401  (curve: used by its test)
 
 
 def main() -> None:

@@ -37,6 +37,29 @@ torch.set_num_threads(1)
 CPU_ARGS = ["sim_device=cpu", "rl_device=cpu", "headless=True"]
 
 
+def signal_at_line(cmd: list[str], cwd, starts_with: str, signum: int, env: dict | None = None,
+                   timeout: float = 120) -> tuple[int, str]:
+    """Run ``cmd``, send it ``signum`` once a line of its output starts with ``starts_with``, and return its exit
+    status and whole output (stdout and stderr together)."""
+    import os
+    import subprocess
+
+    env = env or {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith(starts_with):
+                proc.send_signal(signum)
+                break
+        out, _ = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc.returncode, "".join(lines) + out
+
+
 @pytest.fixture(autouse=True)
 def _seed_everything():
     torch.manual_seed(0)

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from conftest import CPU_ARGS, REPO_ROOT
+from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.runner import Runner, StopRequested
@@ -168,21 +168,8 @@ def test_a_stop_before_the_first_iteration_says_no_checkpoint_exists(tmp_path):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=5",
            "train.runner.num_steps_per_env=100000", *CPU_ARGS, f"runs_dir={runs}"]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    lines = []
-    try:
-        for line in proc.stdout:
-            lines.append(line)
-            if line.startswith("[train] Cartpole:"):  # training starts right after this line
-                proc.send_signal(signal.SIGINT)
-                break
-        out, _ = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    text = "".join(lines) + out
-    assert proc.returncode == 130, text[-3000:]
+    status, text = signal_at_line(cmd, tmp_path, "[train] Cartpole:", signal.SIGINT)  # training starts after it
+    assert status == 130, text[-3000:]
     assert "no checkpoint exists yet" in text and text.count("stopped by SIGINT") == 1, text[-3000:]
     (run_dir,) = (runs / "Cartpole").iterdir()
     assert not list(run_dir.glob("model_*.pt"))

@@ -150,8 +150,8 @@ def boolean(value, key: str) -> bool:
 _RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "multi_gpu", "capture_video", "verbose")
 _RUN_WHOLE_NUMBERS = {"num_envs": 1, "max_iterations": 0, "seed": -1, "graphics_device_id": -1,
                       "capture_video_freq": 1, "capture_video_len": 1}
-_RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device")
-_RUN_NONEMPTY = ("runs_dir", "sim_device", "rl_device")
+_RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device", "sweep_metric")
+_RUN_NONEMPTY = ("runs_dir", "sim_device", "rl_device", "sweep_metric")
 
 
 def check_run_config(cfg: DictConfig) -> None:

@@ -1,0 +1,107 @@
+"""``python train.py -m ...``: a sweep's jobs (Hydra's expansion), their table against a plain calculation from each
+run's history, the files it writes (and the ones it must not), bad input before any job runs, and a signal."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
+from isaacgymenvs_mw.learning.sweep import SMOOTHING, expand, metric_key, summarise
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+
+
+def test_expansion_is_hydras_cartesian_product_in_order():
+    jobs, labels = expand(["task=Cartpole", "seed=1,2", "task.env.maxEffort=range(3,5)", "+x=choice(a,b)"])
+    assert len(jobs) == 8
+    assert jobs[0] == ["task=Cartpole", "seed=1", "task.env.maxEffort=3", "+x=a"]
+    assert jobs[1] == ["task=Cartpole", "seed=1", "task.env.maxEffort=3", "+x=b"]
+    assert jobs[-1] == ["task=Cartpole", "seed=2", "task.env.maxEffort=4", "+x=b"]
+    assert labels[-1] == ["seed=2", "task.env.maxEffort=4", "+x=b"]  # only what varies
+    with pytest.raises(ConfigError, match=r"seed=interval\(0,1\): an interval sweep"):
+        expand(["seed=interval(0,1)"])
+
+
+def reference_row(values: list[float]) -> tuple[float, float]:
+    """Final and best of trailing means over SMOOTHING values, by numpy (fewer values at the start)."""
+    means = [float(np.mean(values[max(0, i + 1 - SMOOTHING):i + 1])) for i in range(len(values))]
+    return means[-1], max(means)
+
+
+def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_metric():
+    rng = np.random.default_rng(0)
+    values = list(rng.uniform(0.0, 1.0, 37))
+    history = [{"time_s": float(i), "Episode/success": v} for i, v in enumerate(values)]
+    history.insert(5, {"time_s": 4.5})  # an iteration where no episode ended: no value, skipped
+    row = summarise({"history": history, "final_iteration": 38}, "Episode/success")
+    final, best = reference_row(values)
+    assert row["final"] == pytest.approx(final, rel=1e-12) and row["best"] == pytest.approx(best, rel=1e-12)
+    assert row["final_over_best"] == pytest.approx(final / best, rel=1e-12)
+    assert metric_key(history, "auto") == "Episode/success"
+    assert metric_key([{"mean_episode_reward": 1.0}], "auto") == "mean_episode_reward"
+    assert metric_key(history, "success") == "Episode/success"
+
+
+def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(tmp_path):
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", "seed=1,2", "num_envs=4",
+           "max_iterations=3", *CPU_ARGS, f"runs_dir={runs}"]
+    out = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=ENV, timeout=600)
+    assert out.returncode == 0, (out.stdout + out.stderr)[-3000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # no multirun/ or outputs/ beside it
+    (sweep_dir,) = (runs / "sweeps").iterdir()
+    assert sweep_dir.name.startswith("Cartpole_")
+    table = json.loads((sweep_dir / "sweep.json").read_text())
+    assert table["metric"] == "mean_episode_reward"  # Cartpole declares no metric of its own
+    assert [row["label"] for row in table["jobs"]] == ["seed=1", "seed=2"]
+    for k, row in enumerate(table["jobs"]):
+        (summary_path,) = (sweep_dir / f"job{k}").glob("Cartpole/*/summary.json")
+        summary = json.loads(summary_path.read_text())
+        assert summary["seed"] == k + 1 and summary["final_iteration"] == 3
+        values = [r["mean_episode_reward"] for r in summary["history"] if r.get("mean_episode_reward") is not None]
+        final, best = reference_row(values)
+        assert row["final"] == pytest.approx(final) and row["best"] == pytest.approx(best)
+        assert row["status"] == 0 and (sweep_dir / f"job{k}.log").read_text().count("[it ") == 3
+    assert (sweep_dir / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    markdown = (sweep_dir / "sweep.md").read_text()
+    assert markdown.count("| seed=") == 2 and markdown in out.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["seed=1,2", "num_envs=4,0"], "num_envs=0 is invalid"),
+    (["seed=1,2", "multi_gpu=True"], "multi_gpu=True: a sweep runs its jobs one per GPU"),
+    (["seed=interval(1,3)"], "an interval sweep needs a sweeper"),
+])
+def test_bad_input_in_any_job_is_one_line_before_any_job_runs(tmp_path, args, message):
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", *args, *CPU_ARGS,
+           f"runs_dir={tmp_path / 'runs'}"]
+    out = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=ENV, timeout=300)
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert message in out.stderr and "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "runs").exists()  # nothing ran
+
+
+def test_sigterm_to_the_sweep_stops_the_running_job_with_its_work_and_starts_no_other(tmp_path):
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", "seed=1,2", "num_envs=4",
+           "max_iterations=100000", "train.runner.save_interval=100000", *CPU_ARGS, f"runs_dir={runs}"]
+    # job 0 is training once "[it " shows (jobs one after another echo their output); the sweep process alone is
+    # signalled, as `kill` does
+    status, text = signal_at_line(cmd, tmp_path, "[it ", signal.SIGTERM, ENV)
+    assert status == 143, text[-3000:]
+    (sweep_dir,) = (runs / "sweeps").iterdir()
+    (run_dir,) = (sweep_dir / "job0" / "Cartpole").iterdir()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["signal"] == "SIGTERM"
+    assert (run_dir / f"model_{summary['final_iteration']}_interrupted.pt").is_file()
+    assert not (sweep_dir / "job1").exists()  # no new job after the stop
+    rows = json.loads((sweep_dir / "sweep.json").read_text())["jobs"]
+    assert rows[0]["interrupted"] is True and rows[1]["final"] is None
