@@ -6,7 +6,7 @@ random actions in [-1, 1]. Recorded per step: the policy observation, the critic
 reward, the reset and time-out flags, and the episode sums the task reports (``extras["episode_terms"]`` and
 ``extras["episode_metrics"]``). The recording was made before the refactor, from the code of the commit that added this file:
 
-    python tests/test_behaviour_recording.py --record
+    python tests/test_behaviour_recording.py --record [Task ...]
 
 Comparison: bitwise for flags, and within 1e-6 (absolute, plus the same relative) for values, since a refactor may
 legitimately change the order of floating-point operations (a sum of named terms in a loop, say).
@@ -25,7 +25,10 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:  # `examples` (the tutorial's Pendulum) is importable from the repository root
     sys.path.insert(0, str(REPO_ROOT))
 DATA = Path(__file__).resolve().parent / "data" / "behaviour"
-TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Terrain", "Ant", "Humanoid", "Pendulum"]
+TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Terrain", "Ant", "Humanoid", "Pendulum",
+         # recorded later (issue 45), from commit 44ba848, before the refactor of observations and the episode clock
+         "CartpoleCamera", "CartpoleCameraDepth", "FrankaCabinet", "FrankaCubeStack", "FrankaCubeLift",
+         "FrankaCubeLiftDepth", "AllegroHand"]
 NUM_ENVS, STEPS, SEED = 2, 50, 0
 # The terrain tasks build a whole map for any number of worlds: a small one keeps the test fast.
 SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "task.env.terrain.maxInitLevel=2"]
@@ -36,7 +39,12 @@ SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "
 # give the same length under the new name.
 SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.episodeLength_s=0.4998"],
                   "Humanoid": ["task.env.episodeLength_s=0.4995"], "Cartpole": ["task.env.episodeLength_s=0.664"],
-                  "Pendulum": ["task.env.episodeLength_s=0.8"]}
+                  "Pendulum": ["task.env.episodeLength_s=0.8"], "CartpoleCamera": ["task.env.episodeLength_s=0.664"],
+                  "CartpoleCameraDepth": ["task.env.episodeLength_s=0.664"],
+                  # 40 policy steps of 1/60 s (the Panda), 20 of 1/30 s (the Allegro hand)
+                  **{name: ["task.env.episodeLength_s=0.67"] for name in ("FrankaCabinet", "FrankaCubeStack",
+                                                                          "FrankaCubeLift", "FrankaCubeLiftDepth",
+                                                                          "AllegroHand")}}
 
 
 def _make(task: str):
@@ -66,6 +74,8 @@ def run_task(task: str) -> dict[str, np.ndarray]:
         add("obs", obs["obs"])
         if "states" in obs:
             add("states", obs["states"])
+        if "camera" in obs:
+            add("camera", obs["camera"])
         add("rew", rew)
         add("reset", reset)
         add("time_outs", extras["time_outs"])
@@ -76,9 +86,9 @@ def run_task(task: str) -> dict[str, np.ndarray]:
     return {name: np.stack(values) for name, values in rows.items()}
 
 
-def record() -> None:
+def record(tasks: list[str]) -> None:
     DATA.mkdir(parents=True, exist_ok=True)
-    for task in TASKS:
+    for task in tasks:
         np.savez_compressed(DATA / f"{task}.npz", **run_task(task))
         print(f"recorded {task}")
 
@@ -98,5 +108,5 @@ def test_task_behaves_as_recorded(task):
 
 
 if __name__ == "__main__":
-    if "--record" in sys.argv:
-        record()
+    if "--record" in sys.argv:  # --record [Task ...]: those tasks only (default: all)
+        record([name for name in sys.argv[sys.argv.index("--record") + 1:] if not name.startswith("-")] or TASKS)
