@@ -60,19 +60,18 @@ class Pendulum(VecTask):
                 ObsTerm("sin_angle", 1, compute=lambda: torch.sin(angle)),
                 ObsTerm("angular_velocity", 1, compute=lambda: velocity)]  # rad/s
 
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
+    def reset_idx(self, mask: torch.Tensor) -> None:
         """Restart the selected envs at a random angle and speed near upright.
 
-        ``env_ids`` is a boolean mask over all envs: every env draws a new state, and only the masked rows are
-        written, so nothing waits on the device to find out which envs are done.
+        ``mask`` is a boolean mask over all envs: every env draws a new state, and only the masked rows are
+        written, so nothing waits on the device to find out which envs are done. VecTask restarts their episode
+        clock (``progress_buf``) itself.
         """
-        mask = self.env_mask(env_ids)
         shape = (self.num_envs, self.sim.num_dof)
         angle = self.reset_angle * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         velocity = self.reset_velocity * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=angle, dof_vel=velocity)
-        self.progress_buf.masked_fill_(mask, 0)
 
 
 def pendulum_fallen(angle: torch.Tensor, fall_angle: float) -> torch.Tensor:

@@ -154,7 +154,7 @@ def test_zero_actions_with_the_published_gains_topple_forward(g1):
     about the ankles, as the bound says, and the episode ends before 2 s: the policy has to balance from the
     first step. MuJoCo C's mj_step on the same model falls too (the pelvis below terminationHeight within 2 s;
     the trajectories part once the feet rock, so only the outcome is compared)."""
-    g1.reset_idx(torch.arange(N))
+    g1.reset_envs(torch.arange(N))
     m = g1.sim.mj_model
     d = mujoco.MjData(m)
     d.qpos[:] = g1.sim.qpos[0].numpy()
@@ -190,7 +190,7 @@ def test_zero_actions_stand_2s_with_ankles_above_the_bound():
     task = isaacgymenvs_mw.make("G1", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
                                 overrides=QUIET + AT_REST + ["task.env.control.stiffness={.*_ankle_.*:300.0}",
                                                              "task.sim.dt=0.0025", "task.env.controlFrequencyInv=8"])
-    task.reset_idx(torch.arange(1))
+    task.reset_envs(torch.arange(1))
     m = task.sim.mj_model
     assert m.opt.timestep == 0.0025 and task.control_dt == pytest.approx(CONTROL_DT)
     d = mujoco.MjData(m)
@@ -292,17 +292,17 @@ def test_feet_slip_clearance_alive_and_deviation_against_numpy(g1):
 
 
 def test_termination_below_termination_height(g1):
-    g1.reset_idx(torch.arange(N))
+    g1.reset_envs(torch.arange(N))
     g1.progress_buf.zero_()
     g1.contact_force_norm.zero_()
     g1.sim.root_pos[:, 2] = torch.tensor([0.39, 0.41])  # cfg/task/G1.yaml terminationHeight 0.4
     assert g1.check_termination().tolist() == [True, False]
-    g1.reset_idx(torch.arange(N))
+    g1.reset_envs(torch.arange(N))
 
 
 def test_foot_velocity_matches_mujoco_c(g1):
     """Simulator.body_lin_vel (cvel and subtree_com) against MuJoCo C's mj_objectVelocity on the same state."""
-    g1.reset_idx(torch.arange(N))
+    g1.reset_envs(torch.arange(N))
     torch.manual_seed(3)
     for _ in range(5):
         g1.step(torch.randn(N, 23))

@@ -143,7 +143,7 @@ def reset_to_default_pose(task) -> None:
     """Reset every env to exactly the default joint pose at the init height, at rest."""
     task.reset_dof_pos_scale = (1.0, 1.0)
     task.reset_root_vel_range = 0.0
-    task.reset_idx(all_envs())
+    task.reset_envs(all_envs())
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -353,7 +353,7 @@ def test_random_resets_start_inside_the_joint_limits(quiet_task, robot, urdf):
     upper = np.array([urdf["joints"][j][1] for j in task.sim.dof_names])
     outside = set()
     for _ in range(20):
-        task.reset_idx(all_envs())
+        task.reset_envs(all_envs())
         q = task.sim.dof_pos.numpy()
         bad = (q < lower - 1e-6) | (q > upper + 1e-6)
         outside |= {task.sim.dof_names[j] for j in np.flatnonzero(bad.any(axis=0))}

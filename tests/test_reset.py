@@ -67,30 +67,30 @@ def test_write_state_refreshes_derived_quantities_of_chosen_worlds_only(make_car
             assert torch.equal(after["qpos"][i], before["qpos"][i])
 
 
-def test_reset_idx_with_boolean_mask(make_cartpole):
+def test_reset_envs_with_boolean_mask(make_cartpole):
     task = make_cartpole(N)
     before = prepare(task)
     chosen = np.array([1, 0, 1, 0, 0, 1, 0, 0], dtype=bool)
-    task.reset_idx(torch.from_numpy(chosen))
+    task.reset_envs(torch.from_numpy(chosen))
     check_partial_reset(task, before, chosen)
 
 
 @pytest.mark.parametrize("dtype", [torch.long, torch.int32])
-def test_reset_idx_with_index_tensor(make_cartpole, dtype):
+def test_reset_envs_with_index_tensor(make_cartpole, dtype):
     task = make_cartpole(N)
     before = prepare(task)
     ids = torch.tensor([6, 1, 7], dtype=dtype)
-    task.reset_idx(ids)
+    task.reset_envs(ids)
     chosen = np.zeros(N, dtype=bool)
     chosen[[1, 6, 7]] = True
     check_partial_reset(task, before, chosen)
 
 
-def test_reset_idx_with_nothing_chosen_changes_nothing(make_cartpole):
+def test_reset_envs_with_nothing_chosen_changes_nothing(make_cartpole):
     task = make_cartpole(N)
     before = prepare(task)
-    task.reset_idx(torch.zeros(N, dtype=torch.bool))
-    task.reset_idx(torch.tensor([], dtype=torch.long))
+    task.reset_envs(torch.zeros(N, dtype=torch.bool))
+    task.reset_envs(torch.tensor([], dtype=torch.long))
     after = snapshot(task)
     for key in before:
         assert torch.equal(after[key], before[key]), key
@@ -101,7 +101,7 @@ def test_reset_noise_covers_the_configured_ranges(make_cartpole):
     task = make_cartpole(n, overrides=["task.env.resetPositionNoise=0.3", "task.env.resetVelocityNoise=0.05"])
     pos, vel = [], []
     for _ in range(4):
-        task.reset_idx(torch.ones(n, dtype=torch.bool))
+        task.reset_envs(torch.ones(n, dtype=torch.bool))
         pos.append(task.sim.dof_pos.numpy().copy())
         vel.append(task.sim.dof_vel.numpy().copy())
     pos, vel = np.concatenate(pos), np.concatenate(vel)  # 64 samples per joint
@@ -122,3 +122,13 @@ def test_reset_returns_observations_of_the_reset_state(make_cartpole):
     np.testing.assert_array_equal(obs, np.stack([q[:, 0], v[:, 0], q[:, 1], v[:, 1]], axis=1))
     assert np.all(np.abs(obs[:, [0, 2]]) <= 0.1) and np.all(np.abs(obs[:, [1, 3]]) <= 0.25)
     assert torch.all(task.progress_buf == 0)
+
+
+def test_the_episode_clock_is_vectasks_and_reset_idx_only_places(make_cartpole):
+    task = make_cartpole(N)
+    before = prepare(task)
+    chosen = torch.tensor([0, 1, 1, 0, 0, 0, 1, 0], dtype=torch.bool)
+    task.reset_idx(chosen)
+    assert torch.equal(task.progress_buf, before["progress"])  # placed, but the clock runs on
+    task.reset_envs(chosen)
+    assert torch.equal(task.progress_buf, torch.where(chosen, 0, before["progress"]))

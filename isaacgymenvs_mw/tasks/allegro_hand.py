@@ -199,8 +199,7 @@ class AllegroHand(VecTask):
         return (2.0 * self.sim.dof_pos - self.dof_upper - self.dof_lower) / (self.dof_upper - self.dof_lower)
 
     # ------------------------------------------------------------------ reset
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
         ended = self.successes * mask
         # IGE's consecutive_successes: over the envs that reset, the mean successes of their episodes, averaged
@@ -236,7 +235,6 @@ class AllegroHand(VecTask):
         self.sim.write_state(mask, root_pos=self.object_start_pos + noise, root_quat=random_rotation(n, dev),
                              root_lin_vel=zero, root_ang_vel=zero, asset="object", refresh=False)
         self._new_goals(mask)
-        self.progress_buf.masked_fill_(mask, 0)
 
     def _new_goals(self, mask: torch.Tensor) -> None:
         """New goal orientations for the masked envs, shown by the goal marker."""

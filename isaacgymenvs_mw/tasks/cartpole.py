@@ -47,15 +47,13 @@ class Cartpole(VecTask):
                 ObsTerm("pole_angle", 1, compute=lambda: q[:, pole:pole + 1]),   # rad, 0 upright
                 ObsTerm("pole_vel", 1, compute=lambda: qd[:, pole:pole + 1])]    # rad/s
 
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         shape = (self.num_envs, self.sim.num_dof)
         pos = self.reset_position_noise * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         vel = self.reset_velocity_noise * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         self.sim.reset_worlds(mask)
         # Observations read joint positions and velocities only; body poses follow at the next physics step.
         self.sim.write_state(mask, dof_pos=pos, dof_vel=vel, refresh=False)
-        self.progress_buf.masked_fill_(mask, 0)
 
 
 def cartpole_failed(cart_pos: torch.Tensor, pole_angle: torch.Tensor, reset_dist: float) -> torch.Tensor:

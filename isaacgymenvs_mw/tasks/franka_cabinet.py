@@ -154,8 +154,7 @@ class FrankaCabinet(VecTask):
                 ObsTerm("drawer_vel", 1, compute=lambda: self.cabinet.dof_vel[:, d:d + 1])]  # m/s
 
     # ------------------------------------------------------------------ reset
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         noise = self.k["startDofNoise"] * (torch.rand((self.num_envs, 9), device=self.device) - 0.5)
         dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
         self.arm.reset(mask, dof_pos)
@@ -165,7 +164,6 @@ class FrankaCabinet(VecTask):
         # holds the previous episode's grasp-to-handle vector (joint and drawer values are current), as IGE's.
         self.sim.write_state(mask, dof_pos=closed, dof_vel=closed, asset=self.cabinet.name, refresh=False)
         self.actions.masked_fill_(mask.unsqueeze(1), 0.0)
-        self.progress_buf.masked_fill_(mask, 0)
 
 
 # --------------------------------------------------------------------------- reward functions (IsaacGymEnvs')

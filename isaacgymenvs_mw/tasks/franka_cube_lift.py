@@ -124,8 +124,7 @@ class FrankaCubeLift(VecTask):
         return self.proprioception_terms() + self.cube_terms()
 
     # ------------------------------------------------------------------ reset
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         n = self.num_envs
         self.sim.reset_worlds(mask)
         self.arm.reset(mask, cubes.noisy_start_pose(self.start_dof_pos, self.k["frankaDofNoise"], self.arm, n))
@@ -134,7 +133,6 @@ class FrankaCubeLift(VecTask):
         # The observation reads the grasp site and the cube: poses recomputed once, after both writes.
         self.sim.write_state(mask, root_pos=pos, root_quat=quat, root_lin_vel=zero, root_ang_vel=zero,
                              asset="cubeA", refresh=True)
-        self.progress_buf.masked_fill_(mask, 0)
 
 
 class FrankaCubeLiftDepth(FrankaCubeLift):

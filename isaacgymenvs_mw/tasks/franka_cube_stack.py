@@ -187,8 +187,7 @@ class FrankaCubeStack(VecTask):
         return terms
 
     # ------------------------------------------------------------------ reset
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
         dof_pos = noisy_start_pose(self.start_dof_pos, self.k["frankaDofNoise"], self.arm, n)
         self.sim.reset_worlds(mask)
@@ -203,7 +202,6 @@ class FrankaCubeStack(VecTask):
         # The observation reads the grasp site and the cubes: poses recomputed once, after all writes.
         self.sim.write_state(mask, root_pos=pos_b, root_quat=quat_b, root_lin_vel=zero, root_ang_vel=zero,
                              asset="cubeB", refresh=True)
-        self.progress_buf.masked_fill_(mask, 0)
 
 
 def control_type(value: object) -> str:

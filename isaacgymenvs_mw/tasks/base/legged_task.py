@@ -363,8 +363,7 @@ class LeggedTask(VecTask):
         # A world that blew up this step earns nothing (VecTask zeroes its reward too).
         self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf)
 
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
         lo, hi = self.reset_dof_pos_scale
         dof_pos = self.default_dof_pos * (lo + (hi - lo) * torch.rand(n, self.num_actions, device=dev))
@@ -394,7 +393,6 @@ class LeggedTask(VecTask):
         self.feet_swing_time *= rows
         self.feet_stance_time *= rows
         self.last_contacts &= rows
-        self.progress_buf.masked_fill_(mask, 0)
         # The base velocities and gravity the observation reads, for the new states (VecTask.reset observes next).
         self.refresh_state()
 

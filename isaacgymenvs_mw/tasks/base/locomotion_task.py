@@ -228,8 +228,7 @@ class LocomotionTask(VecTask):
         total = torch.where(self.terminate_buf, torch.full_like(self.rew_buf, self.k["deathCost"]), earned)
         self.rew_buf[:] = total * self.k["rewardScale"]
 
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        mask = self.env_mask(env_ids)
+    def reset_idx(self, mask: torch.Tensor) -> None:
         n, nd, dev = self.num_envs, self.sim.num_dof, self.device
         noise_pos, noise_vel = self.k["resetDofPosNoise"], self.k["resetDofVelNoise"]
         dof_pos = self.initial_dof_pos + noise_pos * (2.0 * torch.rand(n, nd, device=dev) - 1.0)
@@ -240,7 +239,6 @@ class LocomotionTask(VecTask):
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=dof_vel, refresh=False)  # observations read qpos/qvel
         self.prev_xy.copy_(torch.where(mask.unsqueeze(1), self.start_pos[:2], self.prev_xy))
         self.actions.masked_fill_(mask.unsqueeze(1), 0.0)
-        self.progress_buf.masked_fill_(mask, 0)
         # The torso state the observation reads, for the new states: VecTask.reset observes right after this, and
         # a stale first observation (the torso state from before the reset) made the first episodes fall more.
         self._refresh_torso_state()

@@ -202,6 +202,9 @@ class VecTask(ObservationGroups):
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
         self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
+        # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
+        # timeout_buf; a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
+        self._shared_sequence = type(self).post_physics_step is VecTask.post_physics_step
         self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
         self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         self.execution = StepExecution(
@@ -256,7 +259,7 @@ class VecTask(ObservationGroups):
         # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
         self.terminate_buf.copy_(self.check_termination() | self.nonfinite_buf)
         self.success_buf.copy_(self.check_success() & ~self.terminate_buf)
-        timeout = self.progress_buf >= self.max_episode_length - 1
+        timeout = self.timed_out(self.progress_buf)
         self.timeout_buf.copy_(timeout & ~self.nonfinite_buf)
         self.reset_buf.copy_(self.terminate_buf | self.success_buf | timeout)
         self.compute_reward()
@@ -264,6 +267,10 @@ class VecTask(ObservationGroups):
         self.reset_envs(new_episode)
         self.after_reset(new_episode)
         self.compute_observations()
+
+    def timed_out(self, episode_step: torch.Tensor) -> torch.Tensor:
+        """(num_envs,) bool: episodes at their time limit after ``episode_step`` steps (the one formula of it)."""
+        return episode_step >= self.max_episode_length - 1
 
     def refresh_state(self) -> None:
         """Derive, after the physics, the quantities the terms read (base velocities, contact forces, ...)."""
@@ -288,6 +295,7 @@ class VecTask(ObservationGroups):
         mask = self.env_mask(env_ids)
         self.randomizer.on_reset(mask)
         self.reset_idx(mask)
+        self.progress_buf.masked_fill_(mask, 0)  # the episode clock is VecTask's: reset_idx only places things
         if self.reports_success:
             success = (self.success_buf & mask).float()
             self.extras.setdefault("episode_metrics", {})["success"] = success.sum()
@@ -295,8 +303,10 @@ class VecTask(ObservationGroups):
         if self.rewards is not None:
             self.extras["episode_terms"] = self.rewards.finish_episodes(mask)
 
-    def reset_idx(self, env_ids: torch.Tensor) -> None:
-        """Re-initialise the selected envs; the default does nothing (tasks override)."""
+    def reset_idx(self, mask: torch.Tensor) -> None:
+        """Place the envs of ``mask`` ((num_envs,) bool) for a new episode: robot, objects, goals, task buffers. The
+        default does nothing (tasks override). Called through ``reset_envs``, which accepts IGE's index tensors too
+        and restarts the episode clock (``progress_buf``) afterwards."""
 
     def after_reset(self, new_episode: torch.Tensor) -> None:
         """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
@@ -413,7 +423,10 @@ class VecTask(ObservationGroups):
         self.rew_buf.masked_fill_(blown_up, 0.0)
         self.progress_buf.masked_fill_(blown_up, 0)
         self.reset_buf |= blown_up
-        self.timeout_buf.copy_((episode_step >= self.max_episode_length - 1) & (self.reset_buf != 0) & ~blown_up)
+        if self._shared_sequence:  # post_physics_step set timeout_buf by the task's clock (which a task may move)
+            self.timeout_buf &= (self.reset_buf != 0) & ~blown_up
+        else:  # a ported post_physics_step resets envs itself: their step count is taken from before it ran
+            self.timeout_buf.copy_(self.timed_out(episode_step) & (self.reset_buf != 0) & ~blown_up)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
         # The learner's last line of defence: a NaN or inf that escaped the blow-up reset (a term dividing by a zero
