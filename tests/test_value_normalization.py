@@ -119,8 +119,9 @@ def test_a_nonfinite_batch_leaves_the_statistics_as_they_were():
     assert all(torch.equal(a, b) for a, b in zip(before, norm.buffers()))
 
 
-def test_ppo_feeds_the_rollouts_real_values_and_returns_to_the_statistics():
-    alg = build(SYNC_FREE, normalize_value=True)
+@pytest.mark.parametrize("rnn", [False, True])
+def test_ppo_feeds_the_rollouts_real_values_and_returns_to_the_statistics(rnn):
+    alg = build(SYNC_FREE, normalize_value=True, rnn=rnn)
     records = recorded_updates(alg)
     data = torch.Generator().manual_seed(4)
     torch.manual_seed(5)
@@ -134,6 +135,7 @@ def test_ppo_feeds_the_rollouts_real_values_and_returns_to_the_statistics():
     assert mean > 50  # real units (rewards of about 20 a step), far from the critic's scale
     # updated in place: a captured update keeps reading the same tensors
     assert [id(t) for t in alg.value_normalizer.buffers()] == buffers
+    assert all(np.isfinite(list(r["losses"].values())).all() for r in records)
 
 
 # ---------------------------------------------------------------------------------------------------- the loss

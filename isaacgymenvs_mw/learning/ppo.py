@@ -282,7 +282,11 @@ class SyncFreePPO(PPO):
     def _normalize_value_targets(self) -> None:
         """rl_games' prepare_dataset: merge the rollout's values, then its returns, into the statistics, then bring
         the stored old values and returns into the critic's units. In place, outside the mini-batch loop: a captured
-        update reads these same storage tensors, and the statistics change once per update, not per mini-batch."""
+        update reads these same storage tensors, and the statistics change once per update, not per mini-batch.
+
+        Both are normalised with the statistics after both merges, as rl_games' masked (RNN) path does; its
+        feed-forward path normalises the old values before the returns are merged, which puts the clip's centre and
+        the targets on slightly different scales (a difference that shrinks as the statistics' count grows)."""
         st = self.storage
         with torch.no_grad():
             self.value_normalizer.update(st.values, st.returns)  # type: ignore[union-attr]
