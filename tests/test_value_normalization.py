@@ -320,6 +320,16 @@ def test_bad_normalize_value_names_the_key_the_value_and_what_is_valid(value):
     assert "\n" not in message
 
 
+def test_bad_normalize_value_from_the_command_line_is_the_same_one_line_error(make_cartpole):
+    from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
+    from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+    from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+    cfg = compose_config(["task=Cartpole", *CPU_ARGS, "+train.algorithm.normalize_value=yes"])
+    with pytest.raises(ConfigError, match=r"^train\.algorithm\.normalize_value='yes' is invalid: give True or False$"):
+        Runner(RslRlVecEnv(make_cartpole(8)), rsl_rl_config(to_dict(cfg.train)), log_dir=None, device="cpu")
+
+
 # ---------------------------------------------------------------------------------------------------- two ranks
 
 
