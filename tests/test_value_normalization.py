@@ -17,13 +17,14 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 from rsl_rl.algorithms import PPO
 
-from conftest import CPU_ARGS
 from isaacgymenvs_mw.learning.ppo import VALUE_NORMALIZER_KEY, SyncFreePPO, ValueNormalizer
 from isaacgymenvs_mw.utils.errors import ConfigError
 from test_ppo import (ACTIONS, NUM_ENVS, NUM_STEPS, SYNC_FREE, assert_same_training, build, observations, parameters,
                       train)
 
 EPS, CLAMP = 1e-5, 5.0  # rl_games' RunningMeanStd epsilon and clamp
+# conftest's CPU_ARGS, repeated: importing conftest here would make every spawned rank import Warp and the simulator
+CPU_ARGS = ["sim_device=cpu", "rl_device=cpu", "headless=True"]
 
 
 def numpy_stats(*fed: np.ndarray) -> tuple[float, float]:
