@@ -58,8 +58,10 @@ class ValueNormalizer(torch.nn.Module):
     """rl_games' ``value_mean_std``: running mean and variance of scalar values and returns (float64, in place).
 
     Starts like rl_games' RunningMeanStd (mean 0, variance 1, count 1) and merges each batch's moments with Chan's
-    parallel formula. The statistics are buffers updated with ``copy_``, so a captured CUDA graph that reads them
-    (through the normalised targets) stays valid, and nothing is read on the host. With ``torch.distributed``
+    parallel formula. The statistics are buffers updated with ``copy_`` and ``torch.where`` on the device, never
+    replaced and never read on the host, so anything holding them (a checkpoint being written, the rollout's
+    un-normalisation) sees the same tensors. SyncFreePPO updates them before the mini-batches, outside a captured
+    update, which only reads the storage that they normalise. With ``torch.distributed``
     initialised, the batch moments are those of every rank's batch together (all-reduced), so the ranks keep
     identical statistics, as rsl-rl-lib's EmpiricalNormalization does for observations.
     """
