@@ -11,6 +11,9 @@ arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/test_ppo.py 
 Without host reads the update is still thousands of small kernel launches from Python (the policy networks are
 small, so launching costs more than computing). The whole update, all-reduces included, is therefore recorded once
 as a CUDA graph and replayed (``capture_update``), which made Go1's update 5x faster on an H100 (docs/PERFORMANCE.md).
+
+rl_games' value normalisation (``normalize_value``, off by default) is a learner option here: the critic learns values
+in units of running return statistics, the rollout and GAE stay in real units (``ValueNormalizer``).
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ import torch
 from rsl_rl.algorithms import PPO
 from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
+from tensordict import TensorDict
 
-from isaacgymenvs_mw.utils.config import real_number
+from isaacgymenvs_mw.utils.config import boolean, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
@@ -43,8 +47,79 @@ def bounds_loss(mean: torch.Tensor, soft_bound: float = SOFT_BOUND) -> torch.Ten
     return (above.pow(2) + below.pow(2)).sum(dim=-1).mean()
 
 
+# rl_games' RunningMeanStd (rl_games/algos_torch/running_mean_std.py): variance epsilon, and the clamp of normalised
+# values (and of the critic's output before it is un-normalised) to +-5 standard deviations.
+VALUE_NORM_EPS = 1e-5
+VALUE_NORM_CLAMP = 5.0
+VALUE_NORMALIZER_KEY = "value_normalizer_state_dict"  # the statistics' checkpoint key
+
+
+class ValueNormalizer(torch.nn.Module):
+    """rl_games' ``value_mean_std``: running mean and variance of scalar values and returns (float64, in place).
+
+    Starts like rl_games' RunningMeanStd (mean 0, variance 1, count 1) and merges each batch's moments with Chan's
+    parallel formula. The statistics are buffers updated with ``copy_`` and ``torch.where`` on the device, never
+    replaced and never read on the host, so anything holding them (a checkpoint being written, the rollout's
+    un-normalisation) sees the same tensors. SyncFreePPO updates them before the mini-batches, outside a captured
+    update, which only reads the storage that they normalise. With ``torch.distributed``
+    initialised, the batch moments are those of every rank's batch together (all-reduced), so the ranks keep
+    identical statistics, as rsl-rl-lib's EmpiricalNormalization does for observations.
+    """
+
+    def __init__(self, device: str | torch.device) -> None:
+        super().__init__()
+        self.register_buffer("running_mean", torch.zeros((), dtype=torch.float64, device=device))
+        self.register_buffer("running_var", torch.ones((), dtype=torch.float64, device=device))
+        self.register_buffer("count", torch.ones((), dtype=torch.float64, device=device))
+
+    def normalize(self, values: torch.Tensor) -> torch.Tensor:
+        """Real units -> the critic's units, clamped to +-5 like rl_games."""
+        scaled = (values.double() - self.running_mean) / torch.sqrt(self.running_var + VALUE_NORM_EPS)
+        return scaled.clamp(-VALUE_NORM_CLAMP, VALUE_NORM_CLAMP).to(values.dtype)
+
+    def denormalize(self, values: torch.Tensor) -> torch.Tensor:
+        """The critic's units -> real units; rl_games clamps the critic's output to +-5 first."""
+        clamped = values.double().clamp(-VALUE_NORM_CLAMP, VALUE_NORM_CLAMP)
+        return (clamped * torch.sqrt(self.running_var + VALUE_NORM_EPS) + self.running_mean).to(values.dtype)
+
+    @torch.no_grad()
+    def update(self, *batches: torch.Tensor) -> None:
+        """Merge each batch into the statistics, in the order given (rl_games: the rollout's values, then returns).
+
+        A batch whose moments are not finite (a blown-up world's return) leaves the statistics as they were:
+        one NaN merged in would make every later value target NaN.
+        """
+        batches = tuple(b.double() for b in batches)
+        means = torch.stack([b.mean() for b in batches])
+        counts = [float(b.numel()) for b in batches]  # host numbers: the sizes are known without a GPU read
+        if torch.distributed.is_available() and torch.distributed.is_initialized():
+            # The global mean first, then the spread around it (rsl-rl-lib's EmpiricalNormalization). Every rank's
+            # storage has the same shape, so each batch counts world_size times its local size.
+            world = torch.distributed.get_world_size()
+            torch.distributed.all_reduce(means)
+            means /= world
+            spreads = torch.stack([(b - m).square().mean() for b, m in zip(batches, means)])
+            torch.distributed.all_reduce(spreads)
+            variances = spreads / world
+            counts = [c * world for c in counts]
+        else:
+            variances = torch.stack([b.var(unbiased=False) for b in batches])
+        for batch_mean, batch_var, batch_count in zip(means, variances, counts):
+            # Chan et al.'s parallel merge: rl_games' _update_mean_var_count_from_moments
+            total = self.count + batch_count
+            delta = batch_mean - self.running_mean
+            new_mean = self.running_mean + delta * batch_count / total
+            m2 = (self.running_var * self.count + batch_var * batch_count
+                  + delta.square() * self.count * batch_count / total)
+            finite = torch.isfinite(batch_mean) & torch.isfinite(batch_var)
+            self.running_mean.copy_(torch.where(finite, new_mean, self.running_mean))
+            self.running_var.copy_(torch.where(finite, m2 / total, self.running_var))
+            self.count.copy_(torch.where(finite, total, self.count))
+
+
 class SyncFreePPO(PPO):
-    """rsl-rl-lib's PPO with a host-sync-free update (the rollout side is inherited unchanged).
+    """rsl-rl-lib's PPO with a host-sync-free update (the rollout side is inherited, un-normalising values only with
+    ``normalize_value``).
 
     Supports what the shipped tasks use: feed-forward or recurrent actor/critic, Adam or AdamW, ``adaptive`` or
     ``fixed`` schedule, one or several GPUs. Random network distillation and symmetry augmentation are rejected with a
@@ -57,11 +132,23 @@ class SyncFreePPO(PPO):
     a CUDA graph. ``auto`` captures where it can: a CUDA device, feed-forward networks, no mixed precision.
     The first update runs eagerly (it creates Adam's state), the second captures. With several GPUs call
     ``release_graph`` before leaving the process group (the training launcher does).
+
+    ``normalize_value`` (train YAML ``algorithm.normalize_value``, default False; IsaacGymEnvs' rl_games name):
+    rl_games' value normalisation. The critic's output is a value in units of running statistics of the rollouts'
+    values and returns (``value_normalizer``); the rollout un-normalises it before storing it, so time-out
+    bootstrapping, GAE and the stored returns are in real units. Each update first merges the rollout's values, then
+    its returns, into the statistics, then normalises the stored old values and returns with them, so the value
+    loss (clipped or not) is computed in normalised units and so is the logged ``value`` loss. The statistics are
+    saved in checkpoints; exported policies (the actor) do not use them. Several GPUs: the batch moments are
+    all-reduced, every rank keeps the same statistics.
     """
 
-    def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0, **kwargs) -> None:
+    def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0,
+                 normalize_value: bool = False, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.bounds_loss_coef = real_number(bounds_loss_coef, "train.algorithm.bounds_loss_coef", low=0)
+        self.normalize_value = boolean(normalize_value, "train.algorithm.normalize_value")
+        self.value_normalizer = ValueNormalizer(self.device) if self.normalize_value else None
         if self.bounds_loss_coef > 0.0 and not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
             raise ConfigError("train.algorithm.bounds_loss_coef > 0 needs a Gaussian action distribution "
                               "(train.actor.distribution_cfg): it bounds the action means")
@@ -121,6 +208,28 @@ class SyncFreePPO(PPO):
             return False
         raise ConfigError(f"train.algorithm.capture_update={value!r} is not valid; valid: auto, True, False")
 
+    # ------------------------------------------------------------------ rollout (value normalisation only)
+
+    def act(self, obs: TensorDict) -> torch.Tensor:
+        """rsl-rl-lib's act; with ``normalize_value`` the stored value is in real units, as the time-out bootstrap in
+        ``process_env_step`` and GAE need."""
+        actions = super().act(obs)
+        if self.value_normalizer is not None:
+            self.transition.values = self.value_normalizer.denormalize(self.transition.values)
+        return actions
+
+    def compute_returns(self, obs: TensorDict) -> None:
+        """rsl-rl-lib's GAE; with ``normalize_value`` its last value (the critic's output) is un-normalised first."""
+        if self.value_normalizer is None:
+            super().compute_returns(obs)
+            return
+        critic = self.critic
+        self.critic = _RealUnitCritic(critic, self.value_normalizer)  # type: ignore[assignment]
+        try:
+            super().compute_returns(obs)
+        finally:
+            self.critic = critic
+
     # ------------------------------------------------------------------ learning rate on the device
 
     def _install_device_learning_rate(self) -> None:
@@ -155,6 +264,8 @@ class SyncFreePPO(PPO):
 
     def update(self) -> dict[str, float]:
         """PPO epochs over the stored rollout; returns the mean losses. Reads the GPU once, at the end."""
+        if self.value_normalizer is not None:
+            self._normalize_value_targets()
         loss_sums = self.run_mini_batches()
         observations = self.storage.observations.flatten(0, 1)
         for model in (self._raw_actor, self._raw_critic):
@@ -169,6 +280,20 @@ class SyncFreePPO(PPO):
         self.learning_rate = rate
         self.storage.clear()
         return {"value": value, "surrogate": surrogate, "entropy": entropy}
+
+    def _normalize_value_targets(self) -> None:
+        """rl_games' prepare_dataset: merge the rollout's values, then its returns, into the statistics, then bring
+        the stored old values and returns into the critic's units. In place, outside the mini-batch loop: a captured
+        update reads these same storage tensors, and the statistics change once per update, not per mini-batch.
+
+        Both are normalised with the statistics after both merges, as rl_games' masked (RNN) path does; its
+        feed-forward path normalises the old values before the returns are merged, which puts the clip's centre and
+        the targets on slightly different scales (a difference that shrinks as the statistics' count grows)."""
+        st = self.storage
+        with torch.no_grad():
+            self.value_normalizer.update(st.values, st.returns)  # type: ignore[union-attr]
+            st.values.copy_(self.value_normalizer.normalize(st.values))  # type: ignore[union-attr]
+            st.returns.copy_(self.value_normalizer.normalize(st.returns))  # type: ignore[union-attr]
 
     def run_mini_batches(self) -> torch.Tensor:
         """All optimisation steps of one update, queued without a host read.
@@ -316,8 +441,11 @@ class SyncFreePPO(PPO):
     # ------------------------------------------------------------------ checkpoints
 
     def save(self) -> dict:
-        """rsl-rl-lib's checkpoint, with the learning rate stored as a number so rsl-rl-lib's PPO can load it too."""
+        """rsl-rl-lib's checkpoint, with the learning rate stored as a number so rsl-rl-lib's PPO can load it too,
+        and with ``normalize_value`` the value statistics (a key rsl-rl-lib's PPO ignores)."""
         saved = super().save()
+        if self.value_normalizer is not None:
+            saved[VALUE_NORMALIZER_KEY] = self.value_normalizer.state_dict()
         for group in saved["optimizer_state_dict"]["param_groups"]:
             group["lr"] = float(group["lr"])
             group["capturable"] = False  # a graph-capture setting of this process, not of the checkpoint
@@ -325,5 +453,25 @@ class SyncFreePPO(PPO):
 
     def load(self, loaded_dict: dict, load_cfg: dict | None, strict: bool) -> bool:
         resume_iteration = super().load(loaded_dict, load_cfg, strict)
+        # The statistics belong to the critic: they are loaded with it. load_state_dict copies into the existing
+        # buffers, which a captured update keeps reading. A checkpoint without them (trained with normalize_value
+        # False) leaves the statistics as they start.
+        critic_loaded = load_cfg is None or bool(load_cfg.get("critic"))
+        if self.value_normalizer is not None and critic_loaded and VALUE_NORMALIZER_KEY in loaded_dict:
+            self.value_normalizer.load_state_dict(loaded_dict[VALUE_NORMALIZER_KEY])
         self._install_device_learning_rate()
         return resume_iteration
+
+
+class _RealUnitCritic:
+    """The critic seen through the value statistics: its output in real units; anything else is the critic's own
+    (rsl-rl-lib's ``compute_returns`` also saves and restores its hidden state)."""
+
+    def __init__(self, critic: torch.nn.Module, normalizer: ValueNormalizer) -> None:
+        self._critic, self._normalizer = critic, normalizer
+
+    def __call__(self, *args, **kwargs) -> torch.Tensor:
+        return self._normalizer.denormalize(self._critic(*args, **kwargs))
+
+    def __getattr__(self, name: str):
+        return getattr(self._critic, name)
