@@ -21,9 +21,9 @@ from isaacgymenvs_mw.tasks.franka_cube_lift import FrankaCubeLift
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
 
 
-def cartpole_runner(make_cartpole, num_envs: int = 8) -> Runner:
+def cartpole_runner(make_cartpole, num_envs: int = 8, overrides: tuple[str, ...] = ()) -> Runner:
     task = make_cartpole(num_envs)
-    cfg = compose_config(["task=Cartpole", *CPU_ARGS])
+    cfg = compose_config(["task=Cartpole", *CPU_ARGS, *overrides])
     return Runner(RslRlVecEnv(task), rsl_rl_config(to_dict(cfg.train)), log_dir=None, device="cpu")
 
 
@@ -170,3 +170,15 @@ def test_a_blown_up_franka_world_keeps_value_losses_and_weights_finite(tmp_path,
     state = torch.load(run_dir / "model_3.pt", weights_only=False)
     for group in ("actor_state_dict", "critic_state_dict"):
         assert all(torch.isfinite(v).all() for v in state[group].values() if v.is_floating_point()), group
+
+
+def test_the_value_normalisers_statistics_are_part_of_the_guarded_state(make_cartpole):
+    runner = cartpole_runner(make_cartpole, overrides=("+train.algorithm.normalize_value=True",))
+    runner.learn(1)
+    statistics = list(runner.alg.value_normalizer.buffers())
+    assert statistics and all(any(t is s for t in learner_tensors(runner.alg)) for s in statistics)
+    good = [t.clone() for t in statistics]
+    with torch.no_grad():
+        statistics[0].fill_(float("nan"))
+    assert runner.guard.check() is False
+    assert all(torch.equal(a, b) for a, b in zip(statistics, good))

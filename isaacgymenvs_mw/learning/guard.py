@@ -68,10 +68,13 @@ class NoGoodState(RuntimeError):
 
 def learner_tensors(alg) -> list[torch.Tensor]:
     """Every tensor that defines an rsl-rl-lib PPO learner: actor and critic parameters and buffers (observation
-    normalisers included), the optimiser's per-parameter state, and a device-tensor learning rate."""
+    normalisers included), the value normaliser's statistics, the optimiser's per-parameter state, and a
+    device-tensor learning rate."""
     tensors: list[torch.Tensor] = []
-    for model in (alg.actor, alg.critic):
-        tensors += list(model.parameters()) + list(model.buffers())
+    value_normalizer = getattr(alg, "value_normalizer", None)  # SyncFreePPO with normalize_value=True
+    for model in (alg.actor, alg.critic, value_normalizer):
+        if model is not None:
+            tensors += list(model.parameters()) + list(model.buffers())
     for state in alg.optimizer.state.values():
         tensors += [v for v in state.values() if isinstance(v, torch.Tensor)]
     for name in ("_lr", "_lr64"):  # SyncFreePPO's rate, which Adam reads from the device
