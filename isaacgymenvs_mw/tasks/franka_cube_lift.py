@@ -24,7 +24,7 @@ from isaacgymenvs_mw.tasks.base.franka import FrankaArm
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
-from isaacgymenvs_mw.utils.config import real_number
+from isaacgymenvs_mw.utils.config import boolean, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_yaw
 
@@ -58,6 +58,8 @@ class FrankaCubeLift(VecTask):
                               "'joint_pos'")
         self.k = {key: real_number(env[key], f"env.{key}", 0.0, low_open=positive)
                   for key, positive in _NUMBER_KEYS.items()}
+        # True: the critic also reads what the simulator knows (franka_cubes.privileged_terms)
+        self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self.arm = FrankaArm(self.sim, name)
@@ -123,6 +125,15 @@ class FrankaCubeLift(VecTask):
     def observation_terms(self) -> list[ObsTerm]:
         return self.proprioception_terms() + self.cube_terms()
 
+    def privileged_terms(self) -> list[ObsTerm]:
+        """env.asymmetric_observations: what only the critic reads besides the policy's observation."""
+        if not self.asymmetric:
+            return []
+        return cubes.privileged_terms(self.arm, {"cube": self.cube}, observed=self.proprioception_terms())
+
+    def state_terms(self) -> list[ObsTerm] | None:
+        return self.observation_terms() + self.privileged_terms() if self.asymmetric else None
+
     # ------------------------------------------------------------------ reset
     def reset_idx(self, mask: torch.Tensor) -> None:
         n = self.num_envs
@@ -143,7 +154,7 @@ class FrankaCubeLiftDepth(FrankaCubeLift):
         return self.proprioception_terms()
 
     def state_terms(self) -> list[ObsTerm]:
-        return self.cube_terms()
+        return self.cube_terms() + self.privileged_terms()
 
     def image_terms(self) -> list[ImageTerm]:
         return [ImageTerm("depth", camera=CAMERA, output="depth")]

@@ -45,7 +45,9 @@ from isaacgymenvs_mw.tasks.franka_cubes import (
     gripper_command,
     joint_pos_targets_delta,
     noisy_start_pose,
+    privileged_terms,
 )
+from isaacgymenvs_mw.utils.config import boolean
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw, wrap_to_pi
 
@@ -85,6 +87,8 @@ class FrankaCubeStack(VecTask):
             control = env.setdefault("control", {})
             control["driveMode"] = {**dict(control.get("driveMode") or {}), "joint[1-7]": "effort"}
         self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
+        # True: the critic also reads what the simulator knows (franka_cubes.privileged_terms)
+        self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self.arm = FrankaArm(self.sim, "FrankaCubeStack")
@@ -185,6 +189,12 @@ class FrankaCubeStack(VecTask):
         else:  # joint modes: all 9 joint positions (rad; fingers m), IsaacGymEnvs' joint_tor observation
             terms.append(ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos))
         return terms
+
+    def state_terms(self) -> list[ObsTerm] | None:
+        # env.asymmetric_observations: the policy's observation and the privileged terms, for the critic
+        if not self.asymmetric:
+            return None
+        return self.observation_terms() + privileged_terms(self.arm, {"cube_a": self.cube_a, "cube_b": self.cube_b})
 
     # ------------------------------------------------------------------ reset
     def reset_idx(self, mask: torch.Tensor) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks.base.franka import FrankaArm
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 
 CUBE_A_SIZE = 0.05  # edge length of cube A (m), assets/mjcf/cube_5cm.xml
 TABLE_TOP = -0.1  # table surface height in the robot's base frame (m), assets/mjcf/table.xml
@@ -67,3 +68,26 @@ def grasp_terms(cube_a: torch.Tensor, grasp: torch.Tensor, finger_opening: torch
     held = ((torch.linalg.norm(cube_a - grasp, dim=-1) < 0.03) & (finger_opening < 0.03)).float()
     rise = (cube_a[:, 2] - table_top - CUBE_A_SIZE / 2.0) / full_rise
     return {"held": held, "lift_height": held * torch.clamp(rise, 0.0, 1.0)}
+
+
+def privileged_terms(arm: FrankaArm, cubes: dict, observed: list[ObsTerm] = ()) -> list[ObsTerm]:
+    """What an asymmetric critic reads besides the policy's observation (``env.asymmetric_observations``), 9 + 6 per
+    cube + 7 values: what the simulator knows and a policy must infer: the joint speeds, each cube's velocities, the
+    fingertips relative to cube A and whether A is held (the grasp the reward shapes). ``cubes``: name -> asset view,
+    cube A first; a term named as one of ``observed`` (the policy's, which the critic reads too) is left out."""
+    cube_a = next(iter(cubes.values()))
+
+    def tips_to_cube() -> torch.Tensor:
+        left, right = fingertips(arm)
+        return torch.cat((left - cube_a.root_pos, right - cube_a.root_pos), dim=1)
+
+    terms = [ObsTerm("dof_vel", 9, scale=0.1, compute=lambda: arm.sim.dof_vel)]          # rad/s; fingers m/s
+    for name, cube in cubes.items():
+        terms += [ObsTerm(f"{name}_lin_vel", 3, compute=lambda c=cube: c.root_lin_vel),  # m/s, world frame
+                  ObsTerm(f"{name}_ang_vel", 3, compute=lambda c=cube: c.root_ang_vel)]  # rad/s, cube frame
+    terms += [ObsTerm("fingertips_to_cube", 6, compute=tips_to_cube),                     # m, left and right tip - A
+              ObsTerm("held", 1, compute=lambda: grasp_terms(cube_a.root_pos, arm.grasp_pos(),
+                                                             arm.sim.dof_pos[:, 7])["held"].unsqueeze(1))]  # 0 / 1
+    seen = {term.name for term in observed}
+    return [term for term in terms if term.name not in seen]
+
