@@ -231,12 +231,12 @@ def test_the_depth_image_sees_the_cube_where_a_pinhole_camera_puts_it():
 
 
 # ------------------------------------------------------------------------------------- training and errors
-@pytest.mark.parametrize("task", ["FrankaCubeLift", "FrankaCubeLiftDepth"])
+@pytest.mark.parametrize("task", ["FrankaCubeLift", "FrankaCubeLiftDepth", "FrankaCubeLiftRGB"])
 def test_one_training_iteration_then_test_mode(tmp_path, run_args, task):
     short = ["task.env.episodeLength_s=0.1"]
     cfg = compose_config([f"task={task}", "num_envs=2", "max_iterations=1", "train.runner.num_steps_per_env=8",
                           *short, *run_args])
-    if task == "FrankaCubeLiftDepth":
+    if task != "FrankaCubeLift":
         assert list(cfg.train.runner.obs_groups.actor) == ["camera", "policy"]
         assert list(cfg.train.runner.obs_groups.critic) == ["policy", "critic"]
     summary = run(cfg)
@@ -257,3 +257,33 @@ def test_one_training_iteration_then_test_mode(tmp_path, run_args, task):
 def test_bad_values_are_one_line_errors_naming_the_key(override, message):
     with pytest.raises(ConfigError, match=message):
         make(num_envs=1, overrides=(override,))
+
+
+def test_the_rgb_image_shows_the_red_cube_where_a_pinhole_camera_puts_it():
+    """FrankaCubeLiftRGB: the pixel through which a pinhole camera sees the cube's top centre is the cube's dark red
+    (red above green and blue) in the world that has the cube there, the brown table in the other."""
+    env = make("FrankaCubeLiftRGB", num_envs=2, overrides=("task.env.frankaDofNoise=0.0",))
+    env.reset()
+    assert env.obs_layout.names == ["dof_pos", "dof_vel", "dof_targets", "grasp_pos"]
+    cam = env.cfg["env"]["cameras"]["overhead"]
+    pos, target = np.array(cam["pos"]), np.array(cam["lookAt"])
+    width, height, tan = cam["width"], cam["height"], math.tan(math.radians(cam["fovy"]) / 2)
+    x, y, z = camera_frame(pos, target)
+    a, b = np.array([0.65, -0.2, REST_Z]), np.array([0.62, 0.18, REST_Z])
+    mask = torch.ones(2, dtype=torch.bool)
+    zero = torch.zeros(2, 3)
+    env.sim.write_state(mask, root_pos=torch.tensor(np.stack([a, b]), dtype=torch.float32),
+                        root_quat=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2), root_lin_vel=zero, root_ang_vel=zero,
+                        asset="cubeA", refresh=True)
+    obs, _, _, _ = env.step(torch.zeros(2, 8))
+    image = obs["camera"].int()
+    assert image.shape == (2, 3, 64, 64) and obs["camera"].dtype == torch.uint8
+    for world, centre in ((0, a), (1, b)):
+        rel = centre + [0.0, 0.0, 0.025] - pos
+        along = -rel @ z
+        col = int(np.rint((rel @ x) / along / tan * height / 2 + width / 2 - 0.5))
+        row = int(np.rint(height / 2 - (rel @ y) / along / tan * height / 2 - 0.5))
+        red, green, blue = image[world, :, row, col].tolist()
+        assert red > green + 20 and red > blue + 20, (world, red, green, blue)  # rgba 0.6 0.1 0.1, lit
+        other = image[1 - world, :, row, col].tolist()
+        assert other != [red, green, blue] and other[0] - other[2] < red - blue  # the table: less red than the cube

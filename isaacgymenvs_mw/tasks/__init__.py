@@ -18,7 +18,7 @@ from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
 from isaacgymenvs_mw.tasks.cartpole_camera import CartpoleCamera
 from isaacgymenvs_mw.tasks.franka_cabinet import FrankaCabinet
-from isaacgymenvs_mw.tasks.franka_cube_lift import FrankaCubeLift, FrankaCubeLiftDepth
+from isaacgymenvs_mw.tasks.franka_cube_lift import FrankaCubeLift, FrankaCubeLiftDepth, FrankaCubeLiftRGB
 from isaacgymenvs_mw.tasks.franka_cube_stack import FrankaCubeStack
 from isaacgymenvs_mw.tasks.g1 import G1
 from isaacgymenvs_mw.tasks.go1 import Go1
@@ -36,6 +36,7 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "FrankaCabinet": FrankaCabinet,
     "FrankaCubeLift": FrankaCubeLift,
     "FrankaCubeLiftDepth": FrankaCubeLiftDepth,
+    "FrankaCubeLiftRGB": FrankaCubeLiftRGB,
     "FrankaCubeStack": FrankaCubeStack,
     "G1": G1,
     "G1Terrain": G1,  # same class; cfg/task/G1Terrain.yaml adds env.terrain

@@ -1,4 +1,4 @@
-"""FrankaCubeLift and FrankaCubeLiftDepth (issue 33): the Panda grasps the 5 cm cube and lifts it.
+"""FrankaCubeLift, FrankaCubeLiftDepth and FrankaCubeLiftRGB (issues 33, 44): the Panda grasps the 5 cm cube and lifts it.
 
 The scene (``cfg/task/FrankaCubeLift.yaml``) is FrankaCubeStack's without cube B: the Panda at the world origin (its
 base frame), the table top 0.1 m below it, and cube A (``env.assets.cubeA``) placed at every reset with its xy
@@ -12,7 +12,8 @@ dt x a, clamped to the joint ranges; the last action opens (>= 0) or closes (< 0
 
 FrankaCubeLift observes the cube's pose. FrankaCubeLiftDepth is the same problem, but its policy does not observe
 the cube: it sees a depth image of the table from a fixed camera (``env.cameras.overhead``) and its own arm; the
-critic reads the cube's pose too (asymmetric actor-critic, the train YAML's ``obs_groups``).
+critic reads the cube's pose too (asymmetric actor-critic, the train YAML's ``obs_groups``). FrankaCubeLiftRGB sees
+the same camera's colour image instead: a stronger cue of where the cube is.
 """
 
 from __future__ import annotations
@@ -150,6 +151,8 @@ class FrankaCubeLiftDepth(FrankaCubeLift):
     """FrankaCubeLift whose policy finds the cube in a depth image: it observes the arm and camera ``overhead``'s
     depth (the "camera" group); the cube's pose goes to the critic's state."""
 
+    image_output = "depth"  # which of the camera's outputs the policy sees
+
     def observation_terms(self) -> list[ObsTerm]:
         return self.proprioception_terms()
 
@@ -157,7 +160,14 @@ class FrankaCubeLiftDepth(FrankaCubeLift):
         return self.cube_terms() + self.privileged_terms()
 
     def image_terms(self) -> list[ImageTerm]:
-        return [ImageTerm("depth", camera=CAMERA, output="depth")]
+        return [ImageTerm(self.image_output, camera=CAMERA, output=self.image_output)]
+
+
+class FrankaCubeLiftRGB(FrankaCubeLiftDepth):
+    """FrankaCubeLiftDepth seeing the same camera's colour image: the dark red cube on the brown table top differs
+    from it by 37-49 of 255 levels per channel, where in depth the cube's height is at most 13 of 255 levels."""
+
+    image_output = "rgb"
 
 
 def sample_cube(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float) -> tuple[torch.Tensor, torch.Tensor]:
