@@ -24,10 +24,11 @@ The per-joint frequency is a lower bound on the fastest mode of the whole robot 
 contacts and float32 arithmetic only make it faster), so a drive is reported when ``h ω`` exceeds ``SAFETY`` times
 its limit, not only past it.
 
-The estimate does not hold once constraints couple the joints. On a closed chain (a leg whose foot an equality
-constraint pins) MuJoCo solves the constraint force against the plain inertia while the implicit integrators damp
-with the drive's kv afterwards, so the "implicit damping raises the limit" rule fails there: IsaacGymEnvs'
-BallBalance gains (kp 4000, kd 100 at dt 0.01) give ratio 0.44 and still blow up within a second. Hence the
+The estimate does not hold once constraints couple the joints: it sees one joint with the others free, not the
+constraint that ties them. On a closed chain (a leg whose foot an equality constraint pins) the rule "implicit
+damping raises the limit" fails in MuJoCo C: IsaacGymEnvs' BallBalance gains (kp 4000, damping 100 at dt 0.01) give
+ratio 0.44 under implicitfast (kv) and under euler (joint damping), and the foot still leaves its pin within a
+second, while the same leg with its foot free stays stable (tests/test_drive_stability.py). Hence the
 build-time probe (``probe_divergence``): MuJoCo C steps one world of the compiled model from its initial state and
 from a few perturbed ones, the drives holding the initial pose, and looks for what the run-time check resets (a
 NaN/inf state, a joint speed above ``DIVERGED_SPEED``, an equality constraint violated by more than
@@ -54,8 +55,8 @@ SAFETY = 0.5
 
 # The build-time probe: MuJoCo C steps one world PROBE_STEPS times from each of PROBE_STARTS states: the initial
 # state, then states with random joint speeds (normal, PROBE_SPEED rad/s or m/s): an equilibrium at rest need not
-# excite the mode that diverges. 3 x 300 steps is 3 s of a 0.01 s step; the closed chains of the tests diverge
-# within 0.7 s, and none of the shipped tasks' probes takes more than a few tenths of a second (docs/config.md).
+# excite the mode that diverges. 300 steps are 3 s of a 0.01 s step; the closed chains of the tests diverge within
+# 0.6 s. The shipped tasks' probes take 0.01-0.07 s on a 2-core CPU (docs/config.md, "Drive stability").
 PROBE_STEPS = 300
 PROBE_STARTS = 3
 PROBE_SPEED = 0.1
