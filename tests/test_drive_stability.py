@@ -14,9 +14,10 @@ import warnings
 import mujoco
 import numpy as np
 import pytest
+import torch
 
 from isaacgymenvs_mw.sim import JointDrive, ModelRequest, SolverOptions, build_model
-from isaacgymenvs_mw.sim.stability import SAFETY, drive_stability
+from isaacgymenvs_mw.sim.stability import PROBE_STARTS, PROBE_STEPS, SAFETY, drive_stability, probe_divergence
 
 ROTOR_INERTIA = 0.01  # kg m² about the joint axis
 DT = 0.01
@@ -189,3 +190,183 @@ def test_no_blowup_no_warning():
             task.step(task.zero_actions())
     assert not [w for w in caught if "blew up" in str(w.message) or "PD drive" in str(w.message)]
     assert task.blowups.poll() is None
+
+
+# ------------------------------------------------------------------------------------------------ closed chains
+# A two-link leg under a torso that slides vertically; its foot is pinned to the world by an equality connect
+# constraint (IsaacGymEnvs' BallBalance pins its legs' feet the same way). Both leg joints carry YAML PD drives.
+# With the pin the chain has one degree of freedom and the drives fight the constraint; the single-joint estimate
+# (sim/stability.py) cannot see that.
+LEG_MJCF = """<mujoco model="pinned_leg">
+  <worldbody>
+    <body name="torso" pos="0 0 0.5">
+      <joint name="lift" type="slide" axis="0 0 1"/>
+      <geom type="box" size="0.1 0.1 0.02" mass="1"/>
+      <body name="upper">
+        <joint name="hip" type="hinge" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0.2 0 -0.2" size="0.02" mass="0.2"/>
+        <body name="lower" pos="0.2 0 -0.2">
+          <joint name="knee" type="hinge" axis="0 1 0"/>
+          <geom type="capsule" fromto="0 0 0 -0.2 0 -0.2" size="0.02" mass="0.2"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  {equality}
+</mujoco>
+"""
+PIN = '<equality><connect name="foot_pin" body1="lower" anchor="-0.2 0 -0.2"/></equality>'
+FOOT = np.array([-0.2, 0.0, -0.2])  # the pinned point in the lower leg's frame
+LEG_DT = 0.01  # BallBalance's
+
+
+def build_leg(tmp_path, kp: float, kd: float, integrator: str, armature: float = 0.0, joint_damping: float = 0.0,
+              pinned: bool = True, probe: bool = True):
+    path = tmp_path / "leg.xml"
+    path.write_text(LEG_MJCF.replace("{equality}", PIN if pinned else ""))
+    legs = ("hip", "knee")
+    request = ModelRequest(
+        asset_file=path, fix_base=True, keep_asset_contacts=True,
+        drives={j: JointDrive("position", kp, kd) for j in legs},
+        armature={j: armature for j in legs} if armature else {},
+        joint_damping={j: joint_damping for j in legs} if joint_damping else {},
+        options=SolverOptions(dt=LEG_DT, integrator=integrator, enable_contacts=False), stability_probe=probe)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model = build_model(request)
+    return model, [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+
+
+def foot_drift(model: mujoco.MjModel, data: mujoco.MjData) -> float:
+    """How far the foot is from where it was pinned (m), from the lower leg's pose: not from MuJoCo's residuals."""
+    lower = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "lower")
+    pinned = model.eq_data[0, 3:6]  # the pin's point in the world (body2 is the world), set by the compiler
+    return float(np.linalg.norm(data.xpos[lower] + data.xmat[lower].reshape(3, 3) @ FOOT - pinned))
+
+
+def leg_diverges_in_mujoco_c(model: mujoco.MjModel, seconds: float = 5.0) -> bool:
+    """The reference: MuJoCo C steps the leg for ``seconds`` from its initial pose and from two poses 0.01 rad off,
+    the drives holding the initial pose; diverged: non-finite, a speed above 1e3, or the foot 0.1 m off its pin."""
+    for offset in (0.0, 0.01, -0.01):
+        data = mujoco.MjData(model)
+        mujoco.mj_forward(model, data)
+        data.ctrl[:] = data.actuator_length  # targets: the initial joint angles
+        data.qpos[model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "knee")]] += offset
+        for _ in range(int(seconds / model.opt.timestep)):
+            mujoco.mj_step(model, data)
+            if (not np.isfinite(data.qpos).all() or np.abs(data.qvel).max() > 1e3
+                    or data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number):
+                return True
+            if model.neq and foot_drift(model, data) > 0.1:
+                return True
+    return False
+
+
+@pytest.mark.parametrize("integrator, kd, joint_damping", [
+    ("implicitfast", 100.0, 0.0),  # the actuator's kv, integrated implicitly (the default integrator)
+    ("euler", 0.0, 100.0),  # the joints' own damping: implicit under euler too
+])
+def test_closed_chain_that_the_estimate_passes_is_told_it_will_blow_up(tmp_path, integrator, kd, joint_damping):
+    """BallBalance's gains, kp 4000 and damping 100: the single-joint estimate sees ratio ~0.44 (below SAFETY: no
+    warning before the probe), MuJoCo C diverges within a second with the foot pinned, and the probe says so."""
+    model, messages = build_leg(tmp_path, 4000.0, kd, integrator, joint_damping=joint_damping)
+    ratios = [d.ratio for d in drive_stability(model)]
+    assert len(ratios) == 2 and all(0.4 < r < SAFETY for r in ratios), ratios
+    assert leg_diverges_in_mujoco_c(model)
+    (message,) = messages
+    assert message.startswith("This model will blow its worlds up: a build-time probe in MuJoCo C diverged: ")
+    for part in ("'hip'", "'knee'", "ratio 0.44", "closed chains", "env.control.stiffness", "env.asset.armature",
+                 "sim.dt"):
+        assert part in message, (part, message)
+    # The coupling is the cause: the same drives on the same leg with its foot free do not diverge.
+    free, messages = build_leg(tmp_path, 4000.0, kd, integrator, joint_damping=joint_damping, pinned=False)
+    assert not leg_diverges_in_mujoco_c(free) and messages == []
+
+
+def test_closed_chain_the_estimate_flags_but_that_runs_stable_is_not_told_it_will(tmp_path):
+    """The reverse: euler, kp 1000, kd 10, armature 0.1 (the issue's stable BallBalance port) has ratios ~0.6 and 0.7
+    (past SAFETY: reported), runs stable in MuJoCo C, and is told it "may" be unstable, not that it will blow up."""
+    model, messages = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1)
+    ratios = sorted(d.ratio for d in drive_stability(model))
+    assert SAFETY < ratios[0] < ratios[1] < 1.0, ratios
+    assert not leg_diverges_in_mujoco_c(model)
+    assert len(messages) == 2
+    for message in messages:
+        assert "may be numerically unstable" in message and "will" not in message, message
+        assert "stayed stable" in message
+
+
+def test_probe_can_be_switched_off(tmp_path):
+    """sim.stabilityProbe: False skips the probe: the diverging leg gets no "will" (only the estimate speaks)."""
+    _, messages = build_leg(tmp_path, 4000.0, 100.0, "implicitfast", probe=False)
+    assert messages == []
+    _, messages = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1, probe=False)
+    assert len(messages) == 2 and all("sim.stabilityProbe: False" in m and "may be" in m for m in messages)
+
+
+def test_probe_is_quick_on_the_leg(tmp_path):
+    model, _ = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1, probe=False)
+    result = probe_divergence(model)
+    assert not result.diverged and result.steps == PROBE_STEPS * PROBE_STARTS
+    assert result.seconds < 1.0
+
+
+def test_run_time_check_resets_a_world_whose_pinned_foot_drifted(tmp_path):
+    """A world whose foot is 0.5 m off its pin at modest, finite speeds is reset (the NaN/speed check alone would
+    keep it); one 1 cm off is not. The reference drift comes from MuJoCo C's kinematics of the same states."""
+    from isaacgymenvs_mw.sim import Simulator
+    from isaacgymenvs_mw.sim.simulator import EQUALITY_DIVERGED
+    from isaacgymenvs_mw.sim.stability import BlowupLog
+
+    model, _ = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1, probe=False)
+    sim = Simulator(model, 3, "cpu")
+    blowups = BlowupLog(sim)
+    lift = model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "lift")]
+    offsets = [0.0, 0.5, 0.01]  # the torso lifted this far: the foot leaves its pin by as much
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    sim.ctrl[:] = torch.as_tensor(data.actuator_length, dtype=sim.ctrl.dtype)  # hold the initial angles
+    drift = []
+    for world, offset in enumerate(offsets):
+        sim.qpos[world, lift] += offset
+        data.qpos[:] = sim.qpos[world].double().numpy()
+        mujoco.mj_kinematics(model, data)
+        drift.append(foot_drift(model, data))
+    assert drift[1] == pytest.approx(0.5, abs=1e-3) and drift[2] == pytest.approx(0.01, abs=1e-3)
+
+    sim.simulate()
+    assert torch.isfinite(sim.qvel).all() and float(sim.qvel.abs().max()) < 1e3  # the old check keeps them all
+    violation, equality = sim.equality_violation()
+    assert violation.tolist() == pytest.approx([0.0, 0.5, 0.01], abs=2e-3)  # the residual of the step's start state
+    assert equality.tolist()[1] == 0
+    bad = blowups.reset_nonfinite()
+    assert bad.tolist() == [d > EQUALITY_DIVERGED for d in drift] == [False, True, False]
+    with pytest.warns(RuntimeWarning, match="blew up"):
+        message = blowups.poll(1)
+    assert message.startswith("1 world(s) blew up in the last 1 env steps (NaN/inf state, a joint speed above "
+                              "1e+04, or an equality constraint violated by more than 0.1)")
+    assert "First diverging: equality constraint 'foot_pin' in world 1 (violated by 0.5" in message
+
+
+def test_run_time_check_catches_the_closed_chain_that_drifts_apart(tmp_path):
+    """BallBalance's gains on the pinned leg in MuJoCo Warp: the worlds are reset for the broken pin within a
+    second, before any speed reaches 1e4 (MuJoCo C diverges the same way: test above)."""
+    from isaacgymenvs_mw.sim import Simulator
+    from isaacgymenvs_mw.sim.stability import BlowupLog
+
+    model, _ = build_leg(tmp_path, 4000.0, 100.0, "implicitfast", probe=False)
+    sim = Simulator(model, 2, "cpu")
+    blowups = BlowupLog(sim)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    sim.ctrl[:] = torch.as_tensor(data.actuator_length, dtype=sim.ctrl.dtype)
+    sim.qvel[1] += 0.1  # a second world slightly off equilibrium
+    for step in range(100):
+        sim.simulate()
+        if bool(blowups.reset_nonfinite().any()):
+            break
+    else:
+        pytest.fail("no world was reset in 1 s")
+    with pytest.warns(RuntimeWarning, match="blew up"):
+        message = blowups.poll()
+    assert "First diverging: equality constraint 'foot_pin'" in message, message

@@ -1,4 +1,4 @@
-"""IsaacGym helper names (quat_axis, torch_rand_float, tensor_clamp) against formulas written here in numpy, and
+"""IsaacGym helper names (quat_axis, torch_rand_float, torch_random_dir_2, tensor_clamp) against formulas written here in numpy, and
 against MuJoCo C's own quaternion-to-matrix conversion."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from isaacgymenvs_mw.utils.torch_utils import quat_axis, tensor_clamp, torch_rand_float
+from isaacgymenvs_mw.utils.torch_utils import quat_axis, tensor_clamp, torch_rand_float, torch_random_dir_2
 
 
 def random_quats(n: int, seed: int = 0) -> np.ndarray:
@@ -65,6 +65,28 @@ def test_torch_rand_float_takes_per_column_bounds():
     x = torch_rand_float(lower, upper, (1000, 2), "cpu").numpy()
     assert (x >= lower.numpy()).all() and (x < upper.numpy()).all()
     assert x[:, 0].max() - x[:, 0].min() > 0.9 and x[:, 1].max() - x[:, 1].min() < 0.5
+
+
+def test_torch_random_dir_2_is_a_uniform_unit_direction():
+    torch.manual_seed(0)
+    d = torch_random_dir_2((8000, 1), "cpu")
+    assert d.shape == (8000, 2) and d.dtype == torch.float32
+    x, y = d.double().numpy().T
+    np.testing.assert_allclose(np.hypot(x, y), 1.0, atol=1e-6)
+    # Uniform angle: each eighth of the circle holds an eighth of the draws; E[x] = E[y] = E[xy] = 0, E[x²] = 1/2.
+    counts = np.histogram(np.arctan2(y, x), bins=8, range=(-np.pi, np.pi))[0] / x.size
+    np.testing.assert_allclose(counts, 1 / 8, atol=0.015)
+    assert abs(x.mean()) < 0.03 and abs(y.mean()) < 0.03 and abs((x * y).mean()) < 0.02
+    assert abs((x * x).mean() - 0.5) < 0.02
+    # The same draws as an angle uniform in [-pi, pi) from the global generator, mapped to (cos, sin).
+    torch.manual_seed(0)
+    angle = 2 * np.pi * torch.rand(8000, 1).double().numpy()[:, 0] - np.pi
+    np.testing.assert_allclose(np.stack([np.cos(angle), np.sin(angle)], axis=1), d.numpy(), atol=1e-5)
+
+
+def test_torch_random_dir_2_keeps_a_shape_without_trailing_one():
+    assert torch_random_dir_2((5, 3), "cpu").shape == (5, 3, 2)
+    assert torch_random_dir_2((7,), "cpu").shape == (7, 2)
 
 
 def test_tensor_clamp_per_element_bounds():

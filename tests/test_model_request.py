@@ -167,6 +167,16 @@ def test_unknown_sim_key_is_refused_by_the_request():
         new_request(cfg)
 
 
+
+def test_stability_probe_key_reaches_the_request_and_refuses_a_non_boolean():
+    cfg = task_cfg("Cartpole")
+    assert new_request(cfg)[0].stability_probe is True  # the default: probe
+    cfg["sim"]["stabilityProbe"] = False
+    assert new_request(cfg)[0].stability_probe is False
+    cfg["sim"]["stabilityProbe"] = "no"  # a string is not a switch: "no" would be truthy
+    with pytest.raises(ConfigError, match=r"^sim\.stabilityProbe='no' is invalid: give True or False$"):
+        new_request(cfg)
+
 # ------------------------------------------------------------------------------------------------- name matching
 NAMES = ["LF_HAA", "LF_HFE", "RF_HAA", "base", "LF_FOOT"]
 

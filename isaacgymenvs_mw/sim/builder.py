@@ -142,6 +142,8 @@ class ModelRequest:
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
     # Cameras (env.cameras, sim/cameras.py), added on their bodies once the scene is composed.
     cameras: Sequence[CameraSpec] = ()
+    # Step one world in MuJoCo C at build time to see whether the drives diverge (sim.stabilityProbe, sim/stability.py).
+    stability_probe: bool = True
 
     def body_names(self) -> list[str]:
         """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""
@@ -353,8 +355,10 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
 
     _apply_options(spec, request.options)
     model = spec.compile()
-    # Here, where the timestep and the inertias are final: a drive too stiff for them blows up every world.
-    warn_unstable_drives(model, {j for j, d in request.drives.items() if d.mode == "position"})
+    # Here, where the timestep, the inertias and the constraints are final: a drive too stiff for them (alone, or
+    # coupled to others through a closed chain) blows up every world.
+    warn_unstable_drives(model, {j for j, d in request.drives.items() if d.mode == "position"},
+                         probe=request.stability_probe)
     return model
 
 

@@ -31,7 +31,7 @@ from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 # simulator, and is refused rather than ignored.
 SIM_KEYS = ("dt", "gravity", "integrator", "solver", "cone", "iterations", "ls_iterations", "ccd_iterations",
             "ccd_tolerance", "impratio", "enableContacts", "nconmax", "njmax", "overflowCheckInterval", "useGraphs",
-            "captureStep", "compileStep", "deterministic")
+            "captureStep", "compileStep", "deterministic", "stabilityProbe")
 
 # Keys of one env.assets entry (docs/config.md, "Scenes of several assets").
 # No collapseFixedJoints: MuJoCo's fusestatic is one compiler flag for the whole model, env.asset's.
@@ -90,6 +90,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
         assets=scene_assets(env.get("assets"), yaml_dir, assets_dir, collapse),
         geom_contacts=geom_contacts(env.get("contact")),
         cameras=camera_specs(env.get("cameras")),
+        stability_probe=stability_probe(sim),
     )
     return request, torque_speed
 
@@ -237,6 +238,14 @@ def sim_dt(sim: Mapping) -> float:
     """``sim.dt``, the physics timestep in seconds (the one place it is read, and checked: the randomiser reads it
     before the model is built)."""
     return real_number(sim.get("dt", SolverOptions().dt), "sim.dt", 0.0, low_open=True)
+
+
+def stability_probe(sim: Mapping) -> bool:
+    """``sim.stabilityProbe``: whether the build steps one world in MuJoCo C to see if the drives diverge."""
+    value = sim.get("stabilityProbe", True)
+    if not isinstance(value, bool):
+        raise ConfigError(f"sim.stabilityProbe={value!r} is invalid: give True or False")
+    return value
 
 
 def solver_options(sim: Mapping) -> SolverOptions:

@@ -30,6 +30,11 @@ from isaacgymenvs_mw.utils.rotations import quat_rotate
 # physically meaningless at millisecond steps (50 m per 5 ms step), and a world one step from NaN can hold 1e7: its
 # squared penalty (dof_acc) pushed a logged per-episode mean to -1.5e7 on the GPU and spiked PPO's value loss.
 DIVERGED_SPEED = 1.0e4
+# A world with an equality constraint (a pinned foot, a closed chain) violated by more than this has diverged too:
+# MuJoCo's constraint residual of any one equality row (efc_pos: m for connect and weld positions, rad for weld
+# orientations and joint equalities). Soft constraints under load give millimetres; a closed chain whose drives
+# diverge can drift metres apart at finite, modest speeds (sim/stability.py).
+EQUALITY_DIVERGED = 0.1
 
 # Overflow bits we report, and the task YAML key that fixes each.
 _OVERFLOW_KEYS = {
@@ -186,6 +191,13 @@ class Simulator:
         self.xfrc_applied = wp.to_torch(d.xfrc_applied)
         self.overflow = wp.to_torch(d.overflow)
         self._qpos0 = wp.to_torch(self.model.qpos0)
+        # Equality-constraint rows of the last step's constraint set (MuJoCo Warp keeps them per world, computed at
+        # the start of the step from its state): read by equality_violation, only in models that have any.
+        self._efc = None
+        if m.neq:
+            efc_type = wp.to_torch(d.efc.type)
+            self._efc = (efc_type, wp.to_torch(d.efc.id), wp.to_torch(d.efc.pos), wp.to_torch(d.nefc),
+                         torch.arange(efc_type.shape[1], device=self.device))
         # What one physics step hands to the next; everything else (poses, contacts, sensors) is recomputed.
         self._carried_state = {
             "qpos": self.qpos, "qvel": self.qvel, "ctrl": self.ctrl, "act": wp.to_torch(d.act),
@@ -403,10 +415,27 @@ class Simulator:
         if "body_forces" in state:
             self.body_forces.wrench.copy_(state["body_forces"])
 
+    def equality_violation(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Each world's largest equality-constraint residual (|efc_pos| of any equality row, m or rad) in the last
+        physics step, and the equality constraint it belongs to: two (num_worlds,) tensors; None when the model has
+        no equality constraints. Device work only (no host sync)."""
+        if self._efc is None:
+            return None
+        efc_type, efc_id, efc_pos, nefc, column = self._efc
+        # Rows past a world's count hold what an earlier step left there.
+        rows = (efc_type == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)) & (column < nefc.view(-1, 1))
+        residual = torch.where(rows, efc_pos.abs(), torch.zeros_like(efc_pos))
+        worst = residual.argmax(dim=1, keepdim=True)
+        return residual.gather(1, worst).squeeze(1), efc_id.gather(1, worst).squeeze(1)
+
     def reset_nonfinite(self) -> torch.Tensor:
-        """Reset worlds whose qpos or qvel holds NaN/inf, or whose qvel exceeds ``DIVERGED_SPEED`` (a world on its
-        way to NaN; see ``reset_worlds``); returns their mask."""
+        """Reset worlds whose qpos or qvel holds NaN/inf, whose qvel exceeds ``DIVERGED_SPEED`` (a world on its
+        way to NaN), or whose equality constraints are violated by more than ``EQUALITY_DIVERGED`` (see
+        ``reset_worlds``); returns their mask."""
         bad = ~(torch.isfinite(self.qpos).all(dim=1) & (self.qvel.abs() <= DIVERGED_SPEED).all(dim=1))
+        violation = self.equality_violation()
+        if violation is not None:
+            bad |= violation[0] > EQUALITY_DIVERGED
         self.reset_worlds(bad)
         return bad
 

@@ -23,11 +23,23 @@ checked against its undamped limit ``h ω < 2√2`` (its stability region's exte
 The per-joint frequency is a lower bound on the fastest mode of the whole robot (coupled drives, other poses,
 contacts and float32 arithmetic only make it faster), so a drive is reported when ``h ω`` exceeds ``SAFETY`` times
 its limit, not only past it.
+
+The estimate does not hold once constraints couple the joints: it sees one joint with the others free, not the
+constraint that ties them. On a closed chain (a leg whose foot an equality constraint pins) the rule "implicit
+damping raises the limit" fails in MuJoCo C: IsaacGymEnvs' BallBalance gains (kp 4000, damping 100 at dt 0.01) give
+ratio 0.44 under implicitfast (kv) and under euler (joint damping), and the foot still leaves its pin within a
+second, while the same leg with its foot free stays stable (tests/test_drive_stability.py). Hence the
+build-time probe (``probe_divergence``): MuJoCo C steps one world of the compiled model from its initial state and
+from a few perturbed ones, the drives holding the initial pose, and looks for what the run-time check resets (a
+NaN/inf state, a joint speed above ``DIVERGED_SPEED``, an equality constraint violated by more than
+``EQUALITY_DIVERGED``). The wording is graded by certainty: "will blow its worlds up" only when the probe diverged;
+"may be numerically unstable" when only the single-joint estimate says so; nothing when neither does.
 """
 
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from collections.abc import Collection
 from dataclasses import dataclass
@@ -36,10 +48,18 @@ import mujoco
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.sim.simulator import DIVERGED_SPEED, Simulator
+from isaacgymenvs_mw.sim.simulator import DIVERGED_SPEED, EQUALITY_DIVERGED, Simulator
 
 # A drive is reported when dt·ω exceeds this fraction of its integrator's limit (a factor 2 in frequency, 4 in kp).
 SAFETY = 0.5
+
+# The build-time probe: MuJoCo C steps one world PROBE_STEPS times from each of PROBE_STARTS states: the initial
+# state, then states with random joint speeds (normal, PROBE_SPEED rad/s or m/s): an equilibrium at rest need not
+# excite the mode that diverges. 300 steps are 3 s of a 0.01 s step; the closed chains of the tests diverge within
+# 0.6 s. The shipped tasks' probes take 0.01-0.07 s on a 2-core CPU (docs/config.md, "Drive stability").
+PROBE_STEPS = 300
+PROBE_STARTS = 3
+PROBE_SPEED = 0.1
 
 
 @dataclass(frozen=True)
@@ -113,37 +133,153 @@ def drive_stability(model: mujoco.MjModel) -> list[DriveStability]:
     return out
 
 
-def warn_unstable_drives(model: mujoco.MjModel, yaml_drives: Collection[str] = ()) -> list[DriveStability]:
-    """Warn once per PD drive past ``SAFETY`` times its stability limit; returns those drives.
+@dataclass(frozen=True)
+class ProbeResult:
+    """What the build-time probe saw: whether one MuJoCo C world of the model diverged, and how."""
 
+    diverged: bool
+    steps: int  # MuJoCo C steps taken in all
+    seconds: float  # wall time of the probe
+    start: int = 0  # the start that diverged: 0 the initial state, k > 0 the k-th one with random joint speeds
+    time: float = 0.0  # simulated seconds into that start when it was seen
+    reason: str = ""  # what diverged, in words (a joint, a constraint)
+
+
+def _position_servo(model: mujoco.MjModel, a: int) -> bool:
+    """An actuator whose force is kp (ctrl - length) - kv velocity: MuJoCo's <position>, or a YAML position drive."""
+    kp = float(model.actuator_gainprm[a, 0])
+    return kp > 0.0 and float(model.actuator_biasprm[a, 1]) == -kp
+
+
+def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int, fallback: str) -> str:
+    return mujoco.mj_id2name(model, obj, i) or f"{fallback}{i}"
+
+
+def _divergence(model: mujoco.MjModel, data: mujoco.MjData) -> str:
+    """What the run-time check (``Simulator.reset_nonfinite``) would reset this world for, in words; '' if nothing."""
+    bad_acc = data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)]
+    if bad_acc.number > 0:  # MuJoCo C reset the data itself: the acceleration was NaN/inf or above 1e10
+        joint = int(model.dof_jntid[min(int(bad_acc.lastinfo), model.nv - 1)]) if model.nv else 0
+        return f"NaN/inf or huge acceleration at joint '{_name(model, mujoco.mjtObj.mjOBJ_JOINT, joint, 'joint')}'"
+    if not (np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all()):
+        return "NaN/inf state"
+    if model.nv and np.abs(data.qvel).max() > DIVERGED_SPEED:
+        dof = int(np.argmax(np.abs(data.qvel)))
+        joint = _name(model, mujoco.mjtObj.mjOBJ_JOINT, int(model.dof_jntid[dof]), "joint")
+        return f"joint '{joint}' at speed {abs(data.qvel[dof]):.3g} (above {DIVERGED_SPEED:.0e})"
+    rows = data.efc_type[:data.nefc] == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+    if rows.any():
+        pos = np.abs(data.efc_pos[:data.nefc]) * rows
+        row = int(np.argmax(pos))
+        if pos[row] > EQUALITY_DIVERGED:
+            eq = _name(model, mujoco.mjtObj.mjOBJ_EQUALITY, int(data.efc_id[row]), "equality")
+            return f"equality constraint '{eq}' violated by {pos[row]:.3g} (above {EQUALITY_DIVERGED})"
+    return ""
+
+
+def probe_divergence(model: mujoco.MjModel, steps: int = PROBE_STEPS, starts: int = PROBE_STARTS,
+                     seed: int = 0) -> ProbeResult:
+    """Step one MuJoCo C world of ``model`` ``steps`` times from each of ``starts`` states, every position servo
+    holding the initial pose (its target the actuator's length at ``qpos0``; other actuators' controls 0), and
+    report the first divergence the run-time check would reset a world for (``_divergence``).
+
+    Start 0 is the model's initial state (``qpos0`` at rest: where ``Simulator.reset_worlds`` puts a world), the
+    others add normal joint speeds of ``PROBE_SPEED`` drawn from ``seed``: deterministic, so a build warns the same
+    way every time. MuJoCo's own "simulation is unstable" message is caught, not printed.
+    """
+    began = time.perf_counter()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    ctrl = np.zeros(model.nu)
+    for a in range(model.nu):
+        if _position_servo(model, a):
+            ctrl[a] = data.actuator_length[a]
+            if model.actuator_ctrllimited[a]:
+                ctrl[a] = np.clip(ctrl[a], *model.actuator_ctrlrange[a])
+    rng = np.random.default_rng(seed)
+    taken = 0
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda text: None)  # the warning counter below tells us; the text would be noise
+    try:
+        for start in range(starts):
+            mujoco.mj_resetData(model, data)
+            if start:
+                data.qvel[:] = PROBE_SPEED * rng.standard_normal(model.nv)
+            for step in range(steps):
+                data.ctrl[:] = ctrl
+                mujoco.mj_step(model, data)
+                taken += 1
+                reason = _divergence(model, data)
+                if reason:
+                    return ProbeResult(True, taken, time.perf_counter() - began, start,
+                                       (step + 1) * float(model.opt.timestep), reason)
+    finally:
+        mujoco.set_mju_user_warning(previous)
+    return ProbeResult(False, taken, time.perf_counter() - began)
+
+
+def warn_unstable_drives(model: mujoco.MjModel, yaml_drives: Collection[str] = (),
+                         probe: bool = True) -> tuple[list[DriveStability], ProbeResult | None]:
+    """Warn about PD drives that are or may be numerically unstable; returns the drives past ``SAFETY`` times their
+    single-joint limit, and the probe's result (None when ``probe`` is False: ``sim.stabilityProbe``).
+
+    The wording follows what is known. The probe diverged: each reported drive "will blow its worlds up" (and with
+    none reported, one warning says the model will, naming what diverged: coupled joints are faster than the
+    single-joint estimate). Only the estimate is past its margin: each such drive "may be numerically unstable".
     ``yaml_drives``: the joints whose drive the task YAML added (named by ``env.control.stiffness``/``damping``);
     other position actuators are the asset's own (their ``kp``/``kv`` are in the MJCF).
     """
     bad = [s for s in drive_stability(model) if s.unstable]
+    result = probe_divergence(model) if probe else None
+    if result is None:
+        seen = "the build-time probe is off (sim.stabilityProbe: False)"
+    elif result.diverged:
+        seen = (f"a build-time probe in MuJoCo C diverged: {result.reason}, {result.time:.3g} s after "
+                + ("the initial state" if result.start == 0 else "a start with small random joint speeds")
+                + " with the drives holding the initial pose")
+    else:
+        seen = (f"a build-time probe of {result.steps} steps in MuJoCo C, from the initial state and "
+                f"{PROBE_STARTS - 1} perturbed ones, stayed stable; a different pose or large actions may not")
     for s in bad:
         if s.joint in yaml_drives and s.actuator == s.joint:
             gains = f"lower env.control.stiffness for '{s.joint}'"
         else:
             gains = f"lower the kp of the asset's actuator '{s.actuator}' (or its gear)"
+        verdict = ("is numerically unstable at this timestep and will blow its worlds up" if result and result.diverged
+                   else "may be numerically unstable at this timestep")
         warnings.warn(
-            f"PD drive of joint '{s.joint}' is numerically unstable at this timestep and will blow its worlds up: "
+            f"PD drive of joint '{s.joint}' {verdict}: "
             f"kp={s.kp:.4g}, kd={s.kd:.4g}, I_eff={s.inertia:.4g} (1/dof_invweight0: the joint-space inertia the "
             f"drive moves at the initial pose, armature included), dt={s.dt:.4g} s: dt*sqrt(kp/I_eff)={s.omega_dt:.3g}"
             f" against the {s.integrator} integrator's limit {s.limit:.3g} for this damping (ratio {s.ratio:.3g}; "
-            f"reported above {SAFETY}). Fix: {gains}, add rotor inertia (env.asset.armature), or lower sim.dt "
-            "(raising env.controlFrequencyInv keeps the control rate); docs/config.md, 'Drive stability'.",
+            f"reported above {SAFETY}); {seen}. Fix: {gains}, add rotor inertia (env.asset.armature), or lower "
+            "sim.dt (raising env.controlFrequencyInv keeps the control rate); docs/config.md, 'Drive stability'.",
             RuntimeWarning,
             stacklevel=3,
         )
-    return bad
+    if result is not None and result.diverged and not bad:
+        drives = sorted(drive_stability(model), key=lambda s: -s.ratio)[:3]
+        ratios = ", ".join(f"'{s.joint}' kp={s.kp:.4g} kd={s.kd:.4g} ratio {s.ratio:.3g}" for s in drives)
+        warnings.warn(
+            f"This model will blow its worlds up: {seen}. No single PD drive is past {SAFETY} of its stability limit"
+            + (f" (highest: {ratios})" if drives else "")
+            + ", but joints coupled by constraints (closed chains, equality constraints) are faster than each "
+            "joint alone. Fix: lower env.control.stiffness / damping of the coupled joints, add rotor inertia "
+            "(env.asset.armature), lower sim.dt (raising env.controlFrequencyInv keeps the control rate), or check "
+            "the asset's masses and constraints; docs/config.md, 'Drive stability'.",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+    return bad, result
 
 
 # What usually makes a world blow up, with the keys that change it (the blow-up warning's second half).
 BLOWUP_CAUSES = (
     "Likely causes: PD drive gains too stiff for the timestep (env.control.stiffness / damping; a build-time "
     "'PD drive ... numerically unstable' warning names such a drive), sim.dt too large (lower it; raising "
-    "env.controlFrequencyInv keeps the policy rate), or wrong asset inertias (tiny or zero masses and inertias in the "
-    "URDF <inertial> / MJCF; env.asset.armature adds rotor inertia to a joint); docs/config.md, 'Drive stability'."
+    "env.controlFrequencyInv keeps the policy rate), wrong asset inertias (tiny or zero masses and inertias in the "
+    "URDF <inertial> / MJCF; env.asset.armature adds rotor inertia to a joint), or drives fighting a closed chain "
+    "(a build-time 'PD drive ... will blow' or 'This model will blow' warning); docs/config.md, 'Drive stability'."
 )
 
 
@@ -151,15 +287,20 @@ class BlowupLog:
     """Which joint ran away in the worlds ``Simulator.reset_nonfinite`` resets, reported by a periodic host check.
 
     ``reset_nonfinite`` runs inside the step (device work only, capturable): it keeps each reset world's joint speeds
-    from just before the reset. ``poll`` runs where the host already syncs (VecTask's periodic overflow check) and
-    warns with the first blown-up world's fastest joint (a NaN/inf speed counts as the fastest).
+    (and, in a model with equality constraints, its largest constraint residual) from just before the reset. ``poll``
+    runs where the host already syncs (VecTask's periodic overflow check) and warns with the first blown-up world's
+    fastest joint (a NaN/inf speed counts as the fastest), or the equality constraint it broke at finite speeds.
     """
 
     def __init__(self, sim: Simulator) -> None:
         self.sim = sim
         self.speed = torch.zeros_like(sim.qvel)  # |qvel| of each world at its last blow-up
         self.seen = torch.zeros(sim.num_worlds, dtype=torch.bool, device=sim.device)  # blown up since the last poll
+        # Largest equality residual of each world at its last blow-up, and which constraint it was.
+        self.violation = torch.zeros(sim.num_worlds, dtype=sim.qvel.dtype, device=sim.device)
+        self.equality = torch.zeros(sim.num_worlds, dtype=torch.long, device=sim.device)
         model = sim.mj_model
+        self._equality_names = [_name(model, mujoco.mjtObj.mjOBJ_EQUALITY, i, "equality") for i in range(model.neq)]
         self._dof_labels = []  # how the warning names each dof
         for dof in range(model.nv):
             joint = int(model.dof_jntid[dof])
@@ -172,29 +313,44 @@ class BlowupLog:
     def reset_nonfinite(self) -> torch.Tensor:
         """``sim.reset_nonfinite()``, keeping the reset worlds' joint speeds first; returns the reset mask."""
         speed = self.sim.qvel.abs()  # a copy: the reset zeroes qvel
+        violation = self.sim.equality_violation()  # the reset leaves the constraint rows as they are
         bad = self.sim.reset_nonfinite()
         self.speed.copy_(torch.where(bad.view(-1, 1), torch.nan_to_num(speed, nan=math.inf), self.speed))
+        if violation is not None:
+            self.violation.copy_(torch.where(bad, violation[0].to(self.violation.dtype), self.violation))
+            self.equality.copy_(torch.where(bad, violation[1].long(), self.equality))
         self.seen |= bad
         return bad
 
     def poll(self, interval: int | None = None) -> str | None:
-        """Host-side check (syncs): warn when worlds blew up since the last poll, naming the first one's fastest joint;
-        returns the message (None: none blew up). ``interval``: env steps since the last poll, for the text."""
+        """Host-side check (syncs): warn when worlds blew up since the last poll, naming the first one's fastest joint
+        or broken equality constraint; returns the message (None: none blew up). ``interval``: env steps since the
+        last poll, for the text."""
         seen = self.seen.cpu().numpy().copy()  # a copy: on the CPU device numpy() shares memory with the zeroed flags
         if not seen.any():
             return None
         world = int(np.argmax(seen))
         speeds = self.speed[world].cpu().numpy().copy()
         dof = int(np.argmax(speeds))
+        violation, equality = float(self.violation[world]), int(self.equality[world])
         self.seen.zero_()
         since = f"in the last {interval} env steps" if interval else "since the last check"
         nonfinite = int(np.isinf(speeds).sum())
         speed = (f"|velocity| {speeds[dof]:.3g}" if not nonfinite else
                  "velocity NaN/inf" + (f", as were {nonfinite - 1} other dof(s)" if nonfinite > 1 else ""))
+        criteria = f"NaN/inf state, or a joint speed above {DIVERGED_SPEED:.0e}"
+        if self._equality_names:
+            criteria = (f"NaN/inf state, a joint speed above {DIVERGED_SPEED:.0e}, or an equality constraint "
+                        f"violated by more than {EQUALITY_DIVERGED}")
+        if not nonfinite and speeds[dof] <= DIVERGED_SPEED and violation > EQUALITY_DIVERGED:
+            first = (f"First diverging: equality constraint '{self._equality_names[equality]}' in world {world} "
+                     f"(violated by {violation:.3g}, fastest joint {self._dof_labels[dof]} at {speed}, when it "
+                     "was reset)")
+        else:
+            first = f"First diverging joint: {self._dof_labels[dof]} in world {world} ({speed} when it was reset)"
         message = (
-            f"{int(seen.sum())} world(s) blew up {since} (NaN/inf state, or a joint speed above {DIVERGED_SPEED:.0e}) "
-            f"and were reset to the initial pose. First diverging joint: {self._dof_labels[dof]} in world {world} "
-            f"({speed} when it was reset). {BLOWUP_CAUSES}"
+            f"{int(seen.sum())} world(s) blew up {since} ({criteria}) and were reset to the initial pose. {first}. "
+            f"{BLOWUP_CAUSES}"
         )
         warnings.warn(message, RuntimeWarning, stacklevel=3)
         return message
