@@ -187,28 +187,45 @@ def test_depth_task_groups_hide_the_cube_from_the_actor_only():
     assert state_task.num_obs == 39 and state_task.obs_layout.names[-3:] == ["cube_pos", "cube_quat", "cube_to_grasp"]
 
 
-def test_the_depth_image_sees_the_cube_where_a_pinhole_camera_puts_it():
-    env = make("FrankaCubeLiftDepth", num_envs=2, overrides=("task.env.frankaDofNoise=0.0",))
+# World 0 has the cube at A_POS, world 1 at B_POS: each one's pixels that see its cube see the table in the other.
+A_POS, B_POS = np.array([0.65, -0.2, REST_Z]), np.array([0.62, 0.18, REST_Z])
+
+
+def two_placed_cubes(task: str):
+    """A camera task with the cube at A_POS in world 0 and B_POS in world 1; returns it and the camera's YAML."""
+    env = make(task, num_envs=2, overrides=("task.env.frankaDofNoise=0.0",))
     env.reset()
-    cam = env.cfg["env"]["cameras"]["overhead"]
-    pos, target = np.array(cam["pos"]), np.array(cam["lookAt"])
-    width, height, tan = cam["width"], cam["height"], math.tan(math.radians(cam["fovy"]) / 2)
-    x, y, z = camera_frame(pos, target)
-    # World 0 has the cube at a, world 1 at b: each one's pixels that see its cube see the table in the other.
-    a, b = np.array([0.65, -0.2, REST_Z]), np.array([0.62, 0.18, REST_Z])
     mask = torch.ones(2, dtype=torch.bool)
     zero = torch.zeros(2, 3)
-    env.sim.write_state(mask, root_pos=torch.tensor(np.stack([a, b]), dtype=torch.float32),
+    env.sim.write_state(mask, root_pos=torch.tensor(np.stack([A_POS, B_POS]), dtype=torch.float32),
                         root_quat=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2), root_lin_vel=zero, root_ang_vel=zero,
                         asset="cubeA", refresh=True)
+    return env, env.cfg["env"]["cameras"]["overhead"]
+
+
+def pixel_of(cam, point) -> tuple[int, int]:
+    """(row, col) of the pixel through which a pinhole camera with the YAML's pose and fovy sees ``point``."""
+    pos = np.array(cam["pos"])
+    x, y, z = camera_frame(pos, np.array(cam["lookAt"]))
+    width, height, tan = cam["width"], cam["height"], math.tan(math.radians(cam["fovy"]) / 2)
+    rel = np.asarray(point) - pos
+    along = -rel @ z
+    col = int(np.rint((rel @ x) / along / tan * height / 2 + width / 2 - 0.5))
+    row = int(np.rint(height / 2 - (rel @ y) / along / tan * height / 2 - 0.5))
+    return row, col
+
+
+def test_the_depth_image_sees_the_cube_where_a_pinhole_camera_puts_it():
+    env, cam = two_placed_cubes("FrankaCubeLiftDepth")
+    pos = np.array(cam["pos"])
+    width, height, tan = cam["width"], cam["height"], math.tan(math.radians(cam["fovy"]) / 2)
+    x, y, z = camera_frame(pos, np.array(cam["lookAt"]))
+    a, b = A_POS, B_POS
     env.sim.render_cameras()
     depth = env.sim.camera("overhead").depth[:, 0].numpy()
     for world, centre in ((0, a), (1, b)):
         top = centre + [0.0, 0.0, 0.025]
-        rel = top - pos
-        along = -rel @ z
-        col = int(np.rint((rel @ x) / along / tan * height / 2 + width / 2 - 0.5))
-        row = int(np.rint(height / 2 - (rel @ y) / along / tan * height / 2 - 0.5))
+        row, col = pixel_of(cam, top)
         # the ray through that pixel's centre: where it meets the cube's top face and the table top
         u = (col + 0.5 - width / 2) / (height / 2) * tan
         v = (height / 2 - row - 0.5) / (height / 2) * tan
@@ -262,27 +279,13 @@ def test_bad_values_are_one_line_errors_naming_the_key(override, message):
 def test_the_rgb_image_shows_the_red_cube_where_a_pinhole_camera_puts_it():
     """FrankaCubeLiftRGB: the pixel through which a pinhole camera sees the cube's top centre is the cube's dark red
     (red above green and blue) in the world that has the cube there, the brown table in the other."""
-    env = make("FrankaCubeLiftRGB", num_envs=2, overrides=("task.env.frankaDofNoise=0.0",))
-    env.reset()
+    env, cam = two_placed_cubes("FrankaCubeLiftRGB")
     assert env.obs_layout.names == ["dof_pos", "dof_vel", "dof_targets", "grasp_pos"]
-    cam = env.cfg["env"]["cameras"]["overhead"]
-    pos, target = np.array(cam["pos"]), np.array(cam["lookAt"])
-    width, height, tan = cam["width"], cam["height"], math.tan(math.radians(cam["fovy"]) / 2)
-    x, y, z = camera_frame(pos, target)
-    a, b = np.array([0.65, -0.2, REST_Z]), np.array([0.62, 0.18, REST_Z])
-    mask = torch.ones(2, dtype=torch.bool)
-    zero = torch.zeros(2, 3)
-    env.sim.write_state(mask, root_pos=torch.tensor(np.stack([a, b]), dtype=torch.float32),
-                        root_quat=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2), root_lin_vel=zero, root_ang_vel=zero,
-                        asset="cubeA", refresh=True)
     obs, _, _, _ = env.step(torch.zeros(2, 8))
     image = obs["camera"].int()
     assert image.shape == (2, 3, 64, 64) and obs["camera"].dtype == torch.uint8
-    for world, centre in ((0, a), (1, b)):
-        rel = centre + [0.0, 0.0, 0.025] - pos
-        along = -rel @ z
-        col = int(np.rint((rel @ x) / along / tan * height / 2 + width / 2 - 0.5))
-        row = int(np.rint(height / 2 - (rel @ y) / along / tan * height / 2 - 0.5))
+    for world, centre in ((0, A_POS), (1, B_POS)):
+        row, col = pixel_of(cam, centre + [0.0, 0.0, 0.025])
         red, green, blue = image[world, :, row, col].tolist()
         assert red > green + 20 and red > blue + 20, (world, red, green, blue)  # rgba 0.6 0.1 0.1, lit
         other = image[1 - world, :, row, col].tolist()
