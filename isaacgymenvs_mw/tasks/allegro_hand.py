@@ -53,7 +53,6 @@ class AllegroHand(VecTask):
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) if k not in env]
         if missing:

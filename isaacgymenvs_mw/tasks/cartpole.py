@@ -15,7 +15,6 @@ class Cartpole(VecTask):
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         self.reset_dist = float(env["resetDist"])
         self.max_push_effort = float(env["maxEffort"])

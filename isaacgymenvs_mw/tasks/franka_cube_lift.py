@@ -48,7 +48,6 @@ class FrankaCubeLift(VecTask):
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         name = type(self).__name__
         missing = [k for k in (*_NUMBER_KEYS, *REWARD_SCALE_KEYS.values(), "startDofPos") if k not in env]

@@ -76,7 +76,6 @@ class FrankaCubeStack(VecTask):
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) + ("startDofPos",) if k not in env]
         if missing:

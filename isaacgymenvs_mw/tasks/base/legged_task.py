@@ -43,7 +43,6 @@ from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw
 class LeggedTask(VecTask):
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         self.record_eval_metrics = False
         self._init_terrain_config(env.get("terrain"))

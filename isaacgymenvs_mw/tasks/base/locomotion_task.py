@@ -50,7 +50,6 @@ class LocomotionTask(VecTask):
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         missing = [k for k in _SCALAR_KEYS + ("target", "footContactSensors") if k not in env]
         if missing:
