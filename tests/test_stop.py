@@ -113,3 +113,29 @@ def test_a_replaced_handler_is_found_put_back_and_named(how, names):
         assert lines["watchdog_restored"] == "True" and lines["ours_raised"] == "True"
     assert names in lines["message"] and "it is back" in lines["message"]
     assert lines["alive"] == "True"
+
+
+STUCK = """
+import os, signal, time
+from types import SimpleNamespace
+from isaacgymenvs_mw.utils.stop import StopProtocol
+stop = StopProtocol(stop_grace_s=1.0)
+stop.install()
+runner = SimpleNamespace(stop_signal=None)
+with stop.training(runner):
+    os.kill(os.getpid(), signal.SIGTERM)
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline:  # a run that never reaches its next env step (a compile waiting forever)
+        time.sleep(0.05)
+print("never stopped")
+"""
+
+
+def test_a_stop_that_is_stuck_ends_with_every_threads_stack_and_the_signals_status():
+    started = time.monotonic()
+    out = subprocess.run([sys.executable, "-c", STUCK], capture_output=True, text=True, env=ENV, timeout=60)
+    assert out.returncode == 143, out.stdout + out.stderr
+    assert time.monotonic() - started < 20.0  # well before the 30 s the main thread would wait
+    assert "never stopped" not in out.stdout
+    assert "still running 1 s after SIGTERM: the stop is stuck" in out.stderr
+    assert "Current thread" in out.stderr or "Thread 0x" in out.stderr  # faulthandler's dump of the threads

@@ -37,6 +37,11 @@ from typing import Any, Iterator
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT)
 WATCH_INTERVAL_S = 0.05  # how long a replaced C-level handler can stay in place: 20 reads of 2 signals per second
+# A stop still under way this long after its signal is stuck (on an H200 a compile waited forever for Inductor
+# workers the signal had killed): the process prints every thread's stack and ends with the signal's status, so that
+# a scheduler's job ends with a diagnosis instead of hanging until its SIGKILL. Saving a checkpoint and the summary
+# takes seconds.
+STOP_GRACE_S = 120.0
 
 
 class StopRequested(KeyboardInterrupt):
@@ -56,8 +61,9 @@ class StopProtocol:
     KeyboardInterrupt at once even while training. ``timeout -s INT`` sends one signal to the process and one to its
     process group within microseconds; both must count as one request. Repeated SIGTERMs are always ignored."""
 
-    def __init__(self, repeat_window_s: float = 1.0) -> None:
+    def __init__(self, repeat_window_s: float = 1.0, stop_grace_s: float = STOP_GRACE_S) -> None:
         self.repeat_window_s = repeat_window_s
+        self.stop_grace_s = stop_grace_s
         self.signum: int | None = None  # the first signal received
         self._first_at = 0.0
         self._runner: Any = None  # while training: the object whose ``stop_signal`` the handler sets
@@ -94,6 +100,8 @@ class StopProtocol:
         """Put our C-level handler back wherever native code replaced it (see the module docstring)."""
         while True:
             time.sleep(WATCH_INTERVAL_S)
+            if self.signum is not None and time.monotonic() - self._first_at > self.stop_grace_s:
+                self._give_up()
             with self._watch_lock:
                 if not self._installed or self._watch_paused:
                     continue
@@ -103,6 +111,19 @@ class StopProtocol:
                         _libc_sigaction()(signum, action, None)
                         self._taken.append(f"{signal.Signals(signum).name} by native code "
                                            f"(sigaction: {_describe_native(current)})")
+
+    def _give_up(self) -> None:
+        """The stop is stuck (see STOP_GRACE_S): say so, print every thread's stack, end the process."""
+        import faulthandler
+        import os
+
+        name = signal.Signals(self.signum).name
+        print(f"[train] still running {self.stop_grace_s:.0f} s after {name}: the stop is stuck; every thread's stack "
+              f"follows, then the process ends with status {128 + self.signum}", file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stderr.flush()
+        sys.stdout.flush()
+        os._exit(128 + self.signum)
 
     @contextmanager
     def watchdog_paused(self) -> Iterator[None]:
