@@ -53,7 +53,7 @@ def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_m
 def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(tmp_path):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", "seed=1,2", "num_envs=4",
-           "max_iterations=3", *CPU_ARGS, f"runs_dir={runs}"]
+           "max_iterations=3", "sweep_eval=True", *CPU_ARGS, f"runs_dir={runs}"]
     out = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=ENV, timeout=600)
     assert out.returncode == 0, (out.stdout + out.stderr)[-3000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]  # no multirun/ or outputs/ beside it
@@ -70,6 +70,10 @@ def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(t
         final, best = reference_row(values)
         assert row["final"] == pytest.approx(final) and row["best"] == pytest.approx(best)
         assert row["status"] == 0 and (sweep_dir / f"job{k}.log").read_text().count("[it ") == 3
+        # sweep_eval: test mode ran on the final checkpoint, and the table holds its episode reward
+        evaluation = json.loads((summary_path.parent / "eval.json").read_text())
+        assert evaluation["checkpoint"] == str(summary_path.parent / "model_3.pt")
+        assert row["test"] == pytest.approx(evaluation["mean_episode_reward"])
     assert (sweep_dir / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     markdown = (sweep_dir / "sweep.md").read_text()
     assert markdown.count("| seed=") == 2 and markdown in out.stdout
@@ -79,6 +83,7 @@ def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(t
     (["seed=1,2", "num_envs=4,0"], "num_envs=0 is invalid"),
     (["seed=1,2", "multi_gpu=True"], "multi_gpu=True: a sweep runs its jobs one per GPU"),
     (["seed=interval(1,3)"], "an interval sweep needs a sweeper"),
+    (["seed=1,2", "sweep_eval=maybe"], "sweep_eval='maybe' is invalid"),
 ])
 def test_bad_input_in_any_job_is_one_line_before_any_job_runs(tmp_path, args, message):
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", *args, *CPU_ARGS,

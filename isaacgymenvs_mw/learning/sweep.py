@@ -8,9 +8,11 @@ product, in Hydra's order). Each job is one ``train.py`` process with the job's 
   (``CUDA_VISIBLE_DEVICES``); otherwise one after another, each printing its progress as a single run does;
 * everything is written under ``<runs_dir>/sweeps/<task>_<stamp>/``: ``job<k>/`` is the job's runs_dir and
   ``job<k>.log`` its output (no ``multirun/`` folder in the working directory);
+* with ``sweep_eval=True`` each job's last checkpoint is evaluated in test mode on the job's GPU when its training
+  ends (``train.py test=True``: eval.json beside the checkpoint, output appended to the job's log);
 * when the jobs are done, ``sweep.json`` and ``sweep.md`` hold one row per job (final, best and final/best of the
-  sweep metric, iterations, training time and rate) and ``sweep.png`` the metric against training time, one line
-  per job.
+  sweep metric, its test-mode value, iterations, training time and rate) and ``sweep.png`` the metric against
+  training time, one line per job.
 
 The metric (run key ``sweep_metric``; ``auto``: the first metric the task declares, such as ``success``,
 ``consecutive_successes`` or ``terrain_level``, else ``mean_episode_reward``) is read from each run's summary.json
@@ -71,8 +73,9 @@ class Job:
     log: Path
     gpu: int | None = None
     process: subprocess.Popen | None = None
-    returncode: int | None = None
+    returncode: int | None = None  # the training's
     echo: bool = False
+    evaluating: bool = False  # the process is the test-mode evaluation that follows the training (sweep_eval)
     _reader: threading.Thread | None = field(default=None, repr=False)
 
 
@@ -95,6 +98,7 @@ def run_sweep(argv: list[str], train_script: Path) -> int:
     jobs = [Job(k, o, " ".join(label) or f"job{k}", sweep_dir / f"job{k}", sweep_dir / f"job{k}.log")
             for k, (o, label) in enumerate(zip(jobs_overrides, labels))]
     side_by_side = len(gpus) > 1
+    evaluate = cfg.get("sweep_eval", False) is True  # check_run_config refused anything but a boolean
     print(f"[sweep] {len(jobs)} job(s) of {cfg.task_name} "
           f"{f'side by side on {len(gpus)} GPUs' if side_by_side else 'one after another'}; {sweep_dir}", flush=True)
 
@@ -109,7 +113,7 @@ def run_sweep(argv: list[str], train_script: Path) -> int:
 
     previous = {s: signal.signal(s, forward) for s in (signal.SIGTERM, signal.SIGINT)}
     try:
-        _launch_all(jobs, gpus, config_args, train_script, stopped, echo=not side_by_side)
+        _launch_all(jobs, gpus, config_args, train_script, stopped, echo=not side_by_side, evaluate=evaluate)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
@@ -169,7 +173,9 @@ def _gpus_for(cfg) -> list[int]:
 
 
 def _launch_all(jobs: list[Job], gpus: list[int], options: list[str], train_script: Path, stopped: list[int],
-                echo: bool) -> None:
+                echo: bool, evaluate: bool = False) -> None:
+    """Run the jobs, as many at once as there are GPUs (one at a time without); with ``evaluate``, each job's last
+    checkpoint is evaluated in test mode on the job's GPU as soon as its training ends."""
     free = list(gpus) if gpus else [None]
     pending, running = list(jobs), []
     while pending or running:
@@ -182,31 +188,54 @@ def _launch_all(jobs: list[Job], gpus: list[int], options: list[str], train_scri
             break
         time.sleep(0.2)
         for job in list(running):
-            if job.process.poll() is not None:
-                job._reader.join()
+            if job.process.poll() is None:
+                continue
+            job._reader.join()
+            if not job.evaluating:
                 job.returncode = job.process.returncode
-                running.remove(job)
-                free.append(job.gpu)
                 print(f"[sweep] job {job.index} ({job.label}) ended with status {job.returncode}", flush=True)
+                checkpoint = last_checkpoint(job.runs_dir)
+                if evaluate and not stopped and checkpoint is not None:
+                    _start(job, options, train_script, evaluate=checkpoint)
+                    continue
+            running.remove(job)
+            free.append(job.gpu)
         if stopped:
             pending.clear()
 
 
-def _start(job: Job, options: list[str], train_script: Path) -> None:
+def last_checkpoint(runs_dir: Path) -> Path | None:
+    """The checkpoint of the highest iteration a job's run wrote (its final or interrupted one), or None."""
+    found = []
+    for path in runs_dir.glob("*/*/model_*.pt"):
+        number = path.stem.split("_")[1]
+        if number.isdigit():
+            found.append((int(number), path))
+    return max(found)[1] if found else None
+
+
+def _start(job: Job, options: list[str], train_script: Path, evaluate: Path | None = None) -> None:
+    """Start the job's training, or (``evaluate``: a checkpoint) its test-mode evaluation, whose output is appended
+    to the same log and whose eval.json lands beside the checkpoint."""
     env = dict(os.environ)
     if job.gpu is not None:
         env["CUDA_VISIBLE_DEVICES"] = str(job.gpu)
     env["PYTHONUNBUFFERED"] = "1"
     cmd = [sys.executable, str(train_script), *options, *job.overrides, f"runs_dir={job.runs_dir}"]
     where = f" on GPU {job.gpu}" if job.gpu is not None else ""
-    print(f"[sweep] job {job.index} ({job.label}){where}: log {job.log}", flush=True)
+    if evaluate is None:
+        print(f"[sweep] job {job.index} ({job.label}){where}: log {job.log}", flush=True)
+    else:
+        cmd += ["test=True", f"checkpoint={evaluate}"]
+        print(f"[sweep] job {job.index} ({job.label}){where}: test mode on {evaluate.name}", flush=True)
+    job.evaluating = evaluate is not None
     job.process = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-    job._reader = threading.Thread(target=_copy_output, args=(job,), daemon=True)
+    job._reader = threading.Thread(target=_copy_output, args=(job, "a" if job.evaluating else "w"), daemon=True)
     job._reader.start()
 
 
-def _copy_output(job: Job) -> None:
-    with open(job.log, "w") as log:
+def _copy_output(job: Job, mode: str = "w") -> None:
+    with open(job.log, mode) as log:
         for line in job.process.stdout:
             log.write(line)
             log.flush()
@@ -270,6 +299,7 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
     for job, summary in zip(jobs, summaries):
         row = {"job": job.index, "label": job.label, "status": job.returncode, "log": str(job.log)}
         row.update(summarise(summary, key) if summary else {"final": None, "best": None, "final_over_best": None})
+        row["test"] = test_result(job, key)
         rows.append(row)
     (sweep_dir / "sweep.json").write_text(json.dumps({"metric": key, "smoothing": SMOOTHING, "jobs": rows},
                                                      indent=2) + "\n")
@@ -281,18 +311,29 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
     return key, rows
 
 
+def test_result(job: Job, key: str) -> float | None:
+    """The sweep metric in the job's test-mode evaluation (eval.json beside its last checkpoint), or None."""
+    checkpoint = last_checkpoint(job.runs_dir)
+    path = None if checkpoint is None else checkpoint.parent / "eval.json"
+    if path is None or not path.is_file():
+        return None
+    result = json.loads(path.read_text())
+    value = result.get(key[len(METRIC_PREFIX):] if key.startswith(METRIC_PREFIX) else key)
+    return float(value) if isinstance(value, (int, float)) else None
+
+
 def markdown_table(rows: list[dict], key: str) -> str:
     name = key[len(METRIC_PREFIX):] if key.startswith(METRIC_PREFIX) else key
 
     def fmt(value, spec: str = ".3f") -> str:
         return "-" if value is None else format(value, spec)
 
-    lines = [f"| job | {name}: final | best | final/best | best at (s) | iterations | training (s) | env-steps/s |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [f"| job | {name}: final | best | final/best | best at (s) | test mode | iterations | training (s) | "
+             "env-steps/s |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['label']} | {fmt(r.get('final'))} | {fmt(r.get('best'))} | "
                      f"{fmt(r.get('final_over_best'), '.2f')} | {fmt(r.get('best_at_s'), '.0f')} | "
-                     f"{r.get('iterations') if r.get('iterations') is not None else '-'} | "
+                     f"{fmt(r.get('test'))} | {r.get('iterations') if r.get('iterations') is not None else '-'} | "
                      f"{fmt(r.get('train_time_s'), '.0f')} | {fmt(r.get('env_steps_per_s'), ',.0f')} |")
     return "\n".join(lines)
 
