@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# On a machine with 4 GPUs: issue 44's learning sweeps, one command each. `train.py -m` runs the jobs side by side, one
+# per GPU, evaluates each job's last checkpoint in test mode (sweep_eval=True) and writes sweep.md / sweep.json /
+# sweep.png under OUTDIR/sweeps/. `timeout` ends a sweep at its budget: every job stops with its checkpoint and
+# summary, is evaluated, and the table is still written.
+# Usage: bash benchmarks/gpu_learning.sh NAME OUTDIR
+#   lift      FrankaCubeLift, seeds 1-4, 300 s of training each (target: test success >= 0.90 in 4 of 4,
+#             final >= 0.95 x best)
+#   lift_vn   the same with algorithm.normalize_value=True (ablation)
+#   stack     FrankaCubeStack, seeds 1 and 2, asymmetric critic off and on, 900 s (target: >= 0.80 stacked)
+#   allegro   AllegroHand, seeds 1 and 2, value normalisation off and on, 1500 s (target: consecutive_successes >= 10)
+#   rgb       FrankaCubeLiftRGB and FrankaCubeLiftDepth, seeds 1 and 2 each, 1200 s (target: >= 0.70 from pixels)
+# A budget over one device call (10 minutes) runs detached and is waited for in the next call:
+#   call 1: setsid nohup bash benchmarks/gpu_learning.sh stack /tmp/l > /tmp/l.log 2>&1 &
+#   call 2: while [ ! -f /tmp/l/done ]; do sleep 10; done; cat /tmp/l/sweeps/*/sweep.md
+set -uo pipefail
+name=$1; out=$2
+mkdir -p "$out"; rm -f "$out/done"
+sweep() {  # BUDGET_S OVERRIDES...: the sweep, stopped by SIGTERM once its training budget (plus start-up) is spent
+  local budget=$1; shift
+  timeout --preserve-status -s TERM $((budget + 90)) python3 train.py -m headless=True sweep_eval=True \
+    runs_dir="$out" "$@"
+  echo "sweep ended with status $?"
+}
+case "$name" in
+  lift) sweep 300 task=FrankaCubeLift seed=1,2,3,4 ;;
+  lift_vn) sweep 300 task=FrankaCubeLift seed=1,2,3,4 +train.algorithm.normalize_value=True ;;
+  stack) sweep 900 task=FrankaCubeStack seed=1,2 task.env.asymmetric_observations=False,True ;;
+  allegro) sweep 1500 task=AllegroHand seed=1,2 +train.algorithm.normalize_value=False,True ;;
+  rgb) sweep 1200 task=FrankaCubeLiftRGB,FrankaCubeLiftDepth seed=1,2 ;;
+  *) echo "unknown sweep '$name': lift, lift_vn, stack, allegro or rgb"; exit 2 ;;
+esac
+cat "$out"/sweeps/*/sweep.md
+touch "$out/done"
