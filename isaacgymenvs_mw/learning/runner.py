@@ -333,8 +333,7 @@ def evaluate(task, policy, device: str) -> dict:
     Each env contributes its first episode, so the result is an unbiased sample of ``num_envs`` episodes from
     the task's reset distribution (commands too, for the legged tasks).
     """
-    if hasattr(task, "record_eval_metrics"):
-        task.record_eval_metrics = True  # the task adds per-step metrics (e.g. velocity tracking error)
+    task.record_eval_metrics = True  # the task adds its per-step metrics, if it has any (VecTask.record_eval_metrics)
     env = RslRlVecEnv(task)
     n = env.num_envs
     ret = torch.zeros(n, device=env.device)

@@ -44,7 +44,6 @@ class LeggedTask(VecTask):
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
         env = cfg["env"]
-        self.record_eval_metrics = False
         self._init_terrain_config(env.get("terrain"))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)

@@ -55,7 +55,6 @@ class LocomotionTask(VecTask):
         if missing:
             raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
         self.k = {key: float(env[key]) for key in _SCALAR_KEYS}
-        self.record_eval_metrics = False  # evaluate() turns it on: extras["eval_metrics"] gets the forward speed
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self._init_joints()

@@ -70,6 +70,9 @@ class VecTask(ObservationGroups):
     # True: the episodes that end by ``check_success`` are counted as successes, logged as Episode/success (the rate
     # over ended episodes) and in test mode's eval "success" (each env's first episode).
     reports_success: bool = False
+    # Test mode (learning/runner.evaluate) sets it: a task then adds per-step, per-env metrics to
+    # extras["eval_metrics"] (the legged tasks' velocity tracking error, the runners' forward speed).
+    record_eval_metrics: bool = False
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
