@@ -28,7 +28,9 @@ DATA = Path(__file__).resolve().parent / "data" / "behaviour"
 TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Terrain", "Ant", "Humanoid", "Pendulum",
          # recorded later (issue 45), from commit 44ba848, before the refactor of observations and the episode clock
          "CartpoleCamera", "CartpoleCameraDepth", "FrankaCabinet", "FrankaCubeStack", "FrankaCubeLift",
-         "FrankaCubeLiftDepth", "AllegroHand"]
+         "FrankaCubeLiftDepth", "AllegroHand",
+         # recorded when the task was added (issue 47)
+         "Quadcopter"]
 NUM_ENVS, STEPS, SEED = 2, 50, 0
 # The terrain tasks build a whole map for any number of worlds: a small one keeps the test fast.
 SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "task.env.terrain.maxInitLevel=2"]
@@ -44,7 +46,8 @@ SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.
                   # 40 policy steps of 1/60 s (the Panda), 20 of 1/30 s (the Allegro hand)
                   **{name: ["task.env.episodeLength_s=0.67"] for name in ("FrankaCabinet", "FrankaCubeStack",
                                                                           "FrankaCubeLift", "FrankaCubeLiftDepth",
-                                                                          "AllegroHand")}}
+                                                                          "AllegroHand")},
+                  "Quadcopter": ["task.env.episodeLength_s=0.4"]}  # 40 policy steps of 0.01 s
 
 
 def _make(task: str):

@@ -1,0 +1,134 @@
+"""Quadcopter: fly a four-rotor craft to the point 1 m above its origin and hover there (IsaacGymEnvs' task).
+
+IsaacGymEnvs' ``Quadcopter`` (isaacgymenvs/tasks/quadcopter.py) with its observation, actions, reward, resets and
+termination rule; the model is ``assets/mjcf/quadcopter.xml``, written from the figures IGE builds its MJCF from.
+
+Actions (12, IGE's order): 0:8 move the position targets of the 8 rotor joints (``rotor_pitch<i>``,
+``rotor_roll<i>``, in model order) at up to 8π rad/s, clamped to the joint ranges; 8:12 change the 4 rotor thrusts at
+up to 200 N/s, clamped to [0, 2] N. Both are integrated over the policy step (IGE: ``x += dt * speed * action``), so
+a policy holds a thrust by outputting 0.
+
+Thrust: a force along each rotor body's own z axis, applied with ``apply_body_forces(frame="body")`` at the rotor's
+centre of mass (its site ``rotor<i>_thrust``), which is IGE's ``apply_rigid_body_force_tensors(..., LOCAL_SPACE)``
+on the rotor bodies, one to one. A MuJoCo site actuator would do the same, but its ``ctrl`` is the thrust itself,
+while IGE's action is a rate of change of a thrust state the task keeps; with forces, the 12 actions keep IGE's
+meaning and the model's actuators are only the 8 joint drives.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.rotations import quat_axis
+
+ROTOR_BODIES = ["rotor0", "rotor1", "rotor2", "rotor3"]
+TARGET = (0.0, 0.0, 1.0)            # IGE's fixed target point (m)
+MAX_THRUST = 2.0                    # N per rotor (IGE's max_thrust)
+DOF_ACTION_SPEED_SCALE = 8 * math.pi  # rad/s at action 1 (IGE)
+THRUST_ACTION_SPEED_SCALE = 200.0     # N/s at action 1 (IGE)
+
+
+class Quadcopter(VecTask):
+    """Observation (21): target offset / 3, root quaternion (w, x, y, z), linear velocity / 2, angular velocity / π
+    (world frame), the 8 rotor joint angles. Actions (12): 8 joint target rates, 4 thrust rates."""
+
+    def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
+                 virtual_screen_capture=False, force_render=False):
+        self.cfg = cfg
+        env = cfg["env"]
+        self.rotor_bodies = list(env.get("rotorBodies", ROTOR_BODIES))
+        super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
+                         virtual_screen_capture, force_render)
+        missing = [b for b in self.rotor_bodies if b not in self.sim.body_names]
+        if len(self.rotor_bodies) != 4 or missing:
+            raise ConfigError(
+                f"env.rotorBodies={self.rotor_bodies} is invalid: give the 4 rotor bodies of the asset "
+                f"({env['asset']['assetFileName']}); not in the model: {missing}; its bodies: {self.sim.body_names[1:]}")
+        n, dev = self.num_envs, self.device
+        lower, upper = self.sim.mj_model.jnt_range[self._joint_ids()].T
+        self.dof_lower_limits = torch.tensor(lower, dtype=torch.float32, device=dev)
+        self.dof_upper_limits = torch.tensor(upper, dtype=torch.float32, device=dev)
+        self.dof_position_targets = torch.zeros((n, 8), device=dev)
+        self.thrusts = torch.zeros((n, 4), device=dev)
+        self.forces = torch.zeros((n, 4, 3), device=dev)
+        self.fresh = torch.ones(n, dtype=torch.bool, device=dev)  # first step of an episode: IGE applies no action
+        self.target = torch.tensor(TARGET, device=dev)
+        self.initial_root_pos = self.sim.root_pos[0].clone()
+        self.initial_root_quat = self.sim.root_quat[0].clone()
+        self.build_observation_layouts()
+
+    def _joint_ids(self) -> list[int]:
+        return [self.sim.mj_model.joint(name).id for name in self.sim.dof_names]
+
+    def check_action_size(self) -> None:
+        # 12 actions for 8 joint drives: the 4 thrusts are forces (module docstring), not actuators.
+        if self.num_actions != 12 or self.sim.num_actuators != 8 or len(self.sim.dof_names) != 8:
+            raise ConfigError(
+                f"Quadcopter: env.numActions={self.num_actions} is invalid: give 12 (8 rotor joint targets, 4 thrusts), "
+                f"with a position drive on each of the 8 rotor joints (the model has {self.sim.num_actuators} "
+                f"actuators on {len(self.sim.dof_names)} joints)")
+
+    def pre_physics_step(self, actions: torch.Tensor) -> None:
+        dt = self.control_dt
+        targets = self.dof_position_targets + dt * DOF_ACTION_SPEED_SCALE * actions[:, 0:8]
+        targets = torch.minimum(torch.maximum(targets, self.dof_lower_limits), self.dof_upper_limits)
+        thrusts = (self.thrusts + dt * THRUST_ACTION_SPEED_SCALE * actions[:, 8:12]).clamp(0.0, MAX_THRUST)
+        fresh = self.fresh.view(-1, 1)
+        self.dof_position_targets.copy_(torch.where(fresh, self.sim.dof_pos, targets))
+        self.thrusts.copy_(torch.where(fresh, torch.zeros_like(thrusts), thrusts))
+        self.fresh.zero_()
+        self.forces[:, :, 2] = self.thrusts
+        self.sim.ctrl[:, :8] = self.dof_position_targets
+        self.apply_body_forces(self.forces, bodies=self.rotor_bodies, frame="body")
+
+    def check_termination(self) -> torch.Tensor:
+        return quadcopter_failed(self.sim.root_pos, self.target)
+
+    def compute_reward(self) -> None:
+        self.rew_buf[:] = compute_quadcopter_reward(self.sim.root_pos, self.sim.root_quat,
+                                                    self.sim.root_ang_vel_world(), self.target)
+
+    def observation_terms(self) -> list[ObsTerm]:
+        sim = self.sim
+        return [ObsTerm("target_offset", 3, scale=1.0 / 3.0, compute=lambda: self.target - sim.root_pos),  # m
+                ObsTerm("root_quat", 4, compute=lambda: sim.root_quat),                   # (w, x, y, z)
+                ObsTerm("root_lin_vel", 3, scale=0.5, compute=lambda: sim.root_lin_vel),  # m/s, world frame
+                ObsTerm("root_ang_vel", 3, scale=1.0 / math.pi, compute=sim.root_ang_vel_world),  # rad/s, world
+                ObsTerm("dof_pos", 8, compute=lambda: sim.dof_pos)]                      # rad
+
+    def reset_idx(self, mask: torch.Tensor) -> None:
+        n, dev = self.num_envs, self.device
+        self.sim.reset_worlds(mask)
+        pos = self.initial_root_pos.expand(n, 3).clone()
+        pos[:, 0:2] += 3.0 * torch.rand((n, 2), device=dev) - 1.5          # IGE: x, y += U(-1.5, 1.5)
+        pos[:, 2] += 1.7 * torch.rand(n, device=dev) - 0.2                 # IGE: z += U(-0.2, 1.5)
+        dof_pos = 0.4 * torch.rand((n, 8), device=dev) - 0.2               # IGE: U(-0.2, 0.2) rad
+        self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos), root_pos=pos,
+                             root_quat=self.initial_root_quat.expand(n, 4),
+                             root_lin_vel=torch.zeros((n, 3), device=dev), root_ang_vel=torch.zeros((n, 3), device=dev))
+        self.fresh |= mask
+        self.thrusts.masked_fill_(mask.view(-1, 1), 0.0)
+
+
+def quadcopter_failed(root_pos: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """IGE's rule: more than 3 m from the target, or the body below 0.3 m."""
+    return (torch.linalg.norm(root_pos - target, dim=-1) > 3.0) | (root_pos[:, 2] < 0.3)
+
+
+def compute_quadcopter_reward(root_pos: torch.Tensor, root_quat: torch.Tensor, root_ang_vel: torch.Tensor,
+                              target: torch.Tensor) -> torch.Tensor:
+    """IGE's reward p + p (u + s): p = 1 / (1 + d²) with d the distance to the target, u = 1 / (1 + (1 - z_up)²) with
+    z_up the z component of the body's z axis, s = 1 / (1 + ω_z²) with ω_z the world-frame yaw rate.
+    ``root_quat`` is (w, x, y, z)."""
+    dist = torch.linalg.norm(root_pos - target, dim=-1)
+    pos_reward = 1.0 / (1.0 + dist * dist)
+    tilt = torch.abs(1.0 - quat_axis(root_quat, 2)[:, 2])
+    up_reward = 1.0 / (1.0 + tilt * tilt)
+    spin = torch.abs(root_ang_vel[:, 2])
+    spin_reward = 1.0 / (1.0 + spin * spin)
+    return pos_reward + pos_reward * (up_reward + spin_reward)
