@@ -39,7 +39,6 @@ class Quadcopter(VecTask):
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
-        self.cfg = cfg
         env = cfg["env"]
         self.rotor_bodies = list(env.get("rotorBodies", ROTOR_BODIES))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
