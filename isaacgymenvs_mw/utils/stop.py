@@ -100,11 +100,11 @@ class StopProtocol:
         """Put our C-level handler back wherever native code replaced it (see the module docstring)."""
         while True:
             time.sleep(WATCH_INTERVAL_S)
-            if self.signum is not None and time.monotonic() - self._first_at > self.stop_grace_s:
-                self._give_up()
             with self._watch_lock:
                 if not self._installed or self._watch_paused:
-                    continue
+                    continue  # not ours to guard now (the package used as a library, outside ``training``)
+                if self.signum is not None and time.monotonic() - self._first_at > self.stop_grace_s:
+                    self._give_up()
                 for signum, action in self._actions.items():
                     current = native_handler(signum)
                     if current is not None and current != self._native.get(signum):
@@ -168,6 +168,7 @@ class StopProtocol:
                 for signum, handler in previous.items():
                     signal.signal(signum, handler)
                 self._installed = False
+                self.signum = None  # that run has answered its signal; the next one starts unstopped
 
     def reassert(self) -> str | None:
         """Put the handler back where something replaced it since ``install``; returns the one line that says what
