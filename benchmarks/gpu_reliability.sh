@@ -16,6 +16,13 @@ lane() {  # lane GPU COMMAND...: run on one GPU with caches of its own
   (export CUDA_VISIBLE_DEVICES=$g WARP_CACHE_PATH=/tmp/cache$g/warp TORCHINDUCTOR_CACHE_DIR=/tmp/cache$g/inductor \
           TRITON_CACHE_DIR=/tmp/cache$g/triton; "$@") > "$out/lane$g.txt" 2>&1 &
 }
+base=${BASE:-.base}  # phases B, C, D: a copy of the commit to compare with
+tp() {  # TASK LABEL: one throughput row (benchmarks/throughput.py at 4096 envs): (b)/(a), VecTask.step and training rates
+  python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 30 2>/dev/null \
+    | tail -1 | python3 -c "import json, sys; d = json.loads(sys.stdin.read()); print('$2', d['task'], \
+    round(d['ratio_vectask_over_physics'], 4), round(d['vectask_env_steps_per_s']), round(d['train_env_steps_per_s']))"
+}
+export -f tp
 train_and_test() {  # TASK SEED
   timeout --preserve-status 560 python3 train.py task="$1" seed="$2" headless=True runs_dir="$out/runs.$1.$2" \
     > "$out/$1.seed$2.log" 2>&1
@@ -39,11 +46,6 @@ if [ "$phase" = A ]; then
 elif [ "$phase" = C ]; then
   # Throughput of this tree against BASE on an otherwise idle machine, side by side on the four GPUs, twice with
   # the GPUs swapped; then the signals that land while the step compiles (cold caches) and one late in a long run.
-  base=${BASE:-.base}
-  tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 30 \
-           2>/dev/null | tail -1 | python3 -c "import json, sys; d = json.loads(sys.stdin.read()); print('$2', d['task'], \
-           round(d['ratio_vectask_over_physics'], 4), round(d['vectask_env_steps_per_s']), round(d['train_env_steps_per_s']))"; }
-  export -f tp
   for swap in 0 1; do
     (CUDA_VISIBLE_DEVICES=$swap tp FrankaCubeLift new) & (cd "$base" && CUDA_VISIBLE_DEVICES=$((1 - swap)) PYTHONPATH=/tmp/site:$PWD tp FrankaCubeLift base) &
     (CUDA_VISIBLE_DEVICES=$((2 + swap)) tp Go1 new) & (cd "$base" && CUDA_VISIBLE_DEVICES=$((3 - swap)) PYTHONPATH=/tmp/site:$PWD tp Go1 base) &
@@ -56,23 +58,15 @@ elif [ "$phase" = C ]; then
 elif [ "$phase" = D ]; then
   # Phase C on a machine with 2 GPUs: one throughput pair per task (this tree and BASE side by side, the GPUs
   # swapped between the tasks), then FrankaCubeStack signalled while its step compiles and FrankaCubeLift late.
-  base=${BASE:-.base}
-  tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 30 \
-           2>/dev/null | tail -1 | python3 -c "import json, sys; d = json.loads(sys.stdin.read()); print('$2', d['task'], \
-           round(d['ratio_vectask_over_physics'], 4), round(d['vectask_env_steps_per_s']), round(d['train_env_steps_per_s']))"; }
-  export -f tp
   { (CUDA_VISIBLE_DEVICES=0 tp FrankaCubeLift new) & (cd "$base" && CUDA_VISIBLE_DEVICES=1 PYTHONPATH=/tmp/site:$PWD tp FrankaCubeLift base) & wait
     (CUDA_VISIBLE_DEVICES=1 tp Go1 new) & (cd "$base" && CUDA_VISIBLE_DEVICES=0 PYTHONPATH=/tmp/site:$PWD tp Go1 base) & wait; } | tee "$out/throughput.txt"
   lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out"
   lane 1 bash -c "bash benchmarks/gpu_signal.sh FrankaCubeLift 240 $out max_iterations=3000"
 else
-  base=${BASE:-.base}
-  tp() { python3 benchmarks/throughput.py --task "$1" --num_envs 4096 --sim_device cuda:0 --train_iterations 20 2>/dev/null | tail -1; }
   lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLift 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeLift 300 $out"
   lane 1 python3 benchmarks/nan_injection.py --sim_device cuda:0 --num_envs 4096 --iterations 120
-  export -f tp
-  lane 2 bash -c "echo new:; tp Go1; cd $base && echo base:; PYTHONPATH=/tmp/site:\$PWD tp Go1"
-  lane 3 bash -c "echo new:; tp FrankaCubeLift; cd $base && echo base:; PYTHONPATH=/tmp/site:\$PWD tp FrankaCubeLift"
+  lane 2 bash -c "tp Go1 new; cd $base && PYTHONPATH=/tmp/site:\$PWD tp Go1 base"
+  lane 3 bash -c "tp FrankaCubeLift new; cd $base && PYTHONPATH=/tmp/site:\$PWD tp FrankaCubeLift base"
 fi
 wait
 for g in 0 1 2 3; do [ -f "$out/lane$g.txt" ] || continue; echo "== lane $g"; cat "$out/lane$g.txt" | grep -v '^\[it\|^\[isaac\|Warning\|warn' | tail -8 | cut -c1-1500; done
