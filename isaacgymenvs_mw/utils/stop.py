@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import signal
 import sys
 import threading
@@ -206,22 +207,18 @@ def native_handler(signum: int) -> int | None:
     return None if action is None else (ctypes.c_void_p.from_buffer(action).value or 0)  # sa_handler comes first
 
 
-_SIGACTION: list = []
-
-
+@functools.cache
 def _libc_sigaction():
-    if not _SIGACTION:
-        function = None
-        if sys.platform.startswith("linux"):
-            try:
-                libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-                function = libc.sigaction
-                function.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p]
-                function.restype = ctypes.c_int
-            except (OSError, AttributeError):
-                function = None
-        _SIGACTION.append(function)
-    return _SIGACTION[0]
+    """libc's ``sigaction`` through ctypes (Linux), looked up once; None where there is none to call."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        function = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True).sigaction
+    except (OSError, AttributeError):
+        return None
+    function.argtypes = [ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p]
+    function.restype = ctypes.c_int
+    return function
 
 
 def _describe(handler) -> str:
