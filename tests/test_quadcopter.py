@@ -7,6 +7,7 @@ positions are computed from them independently of the MJCF.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -15,10 +16,12 @@ import torch
 
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
-from isaacgymenvs_mw.tasks.quadcopter import compute_quadcopter_reward, quadcopter_failed
+from isaacgymenvs_mw.tasks.quadcopter import (
+    compute_quadcopter_reward,
+    quadcopter_failed,
+)
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
-from pathlib import Path
 
 XML = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "quadcopter.xml"
 # IGE's figures
@@ -153,3 +156,19 @@ def test_missing_rotor_bodies_is_a_one_line_error_naming_the_key():
     with pytest.raises(ConfigError, match=r"^task\.env\.rotorBodies=\['rotor0', 'rotor1', 'rotor2', 'prop3'\] is "
                                           r"invalid: .*not in the model: \['prop3'\][^\n]*$"):
         make("Quadcopter", num_envs=1, overrides=("task.env.rotorBodies=[rotor0,rotor1,rotor2,prop3]",))
+
+
+def test_test_mode_reports_distance_and_reached_target_by_the_distance_at_the_episode_end(env):
+    env.record_eval_metrics = True  # as evaluate() sets it
+    target = torch.tensor([0.0, 0.0, 1.0])
+    mask = torch.tensor([True, True])
+    env.reset_idx(mask)
+    env.sim.write_state(mask, root_pos=torch.tensor([[0.0, 0.05, 1.0], [0.3, 0.0, 1.0]]))
+    env.compute_reward()
+    assert env.extras["eval_metrics"]["target_distance"].tolist() == pytest.approx([0.05, 0.3], abs=1e-5)
+    env.reset_idx(torch.tensor([True, False]))  # only the first episode ends: the second reports nothing
+    assert env.extras["episode_outcomes"]["reached_target"].tolist() == [1.0, 0.0]
+    env.sim.write_state(mask, root_pos=torch.stack([target + torch.tensor([0.2, 0.0, 0.0]), target]))
+    env.reset_idx(mask)
+    assert env.extras["episode_outcomes"]["reached_target"].tolist() == [0.0, 1.0]
+    env.record_eval_metrics = False
