@@ -84,3 +84,18 @@ def make_cartpole():
 def run_args(tmp_path):
     """Run-level overrides for launch.run / train.py that keep everything on the CPU and inside tmp_path."""
     return [*CPU_ARGS, f"runs_dir={tmp_path / 'runs'}"]
+
+
+def train_one_iteration_then_test(task: str, runs_dir: Path, run_args: list[str], overrides: list[str]) -> None:
+    """One training iteration of ``task`` on 2 envs (8 steps each), then test mode from its checkpoint, which must
+    finish one episode per env."""
+    from isaacgymenvs_mw.learning.launch import run
+    from isaacgymenvs_mw.utils.config import compose_config
+
+    cfg = compose_config([f"task={task}", "num_envs=2", "max_iterations=1", "train.runner.num_steps_per_env=8",
+                          *overrides, *run_args])
+    assert run(cfg)["iterations"] == 1
+    (checkpoint,) = (runs_dir / task).glob("*/model_1.pt")
+    result = run(compose_config([f"task={task}", "num_envs=2", "test=True", f"checkpoint={checkpoint}", *overrides,
+                                 *run_args]))
+    assert result["episodes"] == 2

@@ -30,7 +30,7 @@ TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Te
          "CartpoleCamera", "CartpoleCameraDepth", "FrankaCabinet", "FrankaCubeStack", "FrankaCubeLift",
          "FrankaCubeLiftDepth", "AllegroHand",
          # recorded when the task was added (issue 47)
-         "Quadcopter"]
+         "Quadcopter", "BallBalance"]
 NUM_ENVS, STEPS, SEED = 2, 50, 0
 # The terrain tasks build a whole map for any number of worlds: a small one keeps the test fast.
 SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "task.env.terrain.maxInitLevel=2"]
@@ -47,7 +47,8 @@ SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.
                   **{name: ["task.env.episodeLength_s=0.67"] for name in ("FrankaCabinet", "FrankaCubeStack",
                                                                           "FrankaCubeLift", "FrankaCubeLiftDepth",
                                                                           "AllegroHand")},
-                  "Quadcopter": ["task.env.episodeLength_s=0.4"]}  # 40 policy steps of 0.01 s
+                  "Quadcopter": ["task.env.episodeLength_s=0.4"],  # 40 policy steps of 0.01 s
+                  "BallBalance": ["task.env.episodeLength_s=0.4"]}  # 40 policy steps of 0.01 s
 
 
 def _make(task: str):

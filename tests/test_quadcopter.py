@@ -13,14 +13,10 @@ import mujoco
 import numpy as np
 import pytest
 import torch
+from conftest import train_one_iteration_then_test
 
 from isaacgymenvs_mw import make
-from isaacgymenvs_mw.learning.launch import run
-from isaacgymenvs_mw.tasks.quadcopter import (
-    compute_quadcopter_reward,
-    quadcopter_failed,
-)
-from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.tasks.quadcopter import compute_quadcopter_reward, quadcopter_failed
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 XML = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "quadcopter.xml"
@@ -141,15 +137,7 @@ def test_reset_ranges_are_iges(env):
 
 
 def test_one_training_iteration_then_test_mode(tmp_path, run_args):
-    short = ["task.env.episodeLength_s=0.1"]
-    cfg = compose_config(["task=Quadcopter", "num_envs=2", "max_iterations=1", "train.runner.num_steps_per_env=8",
-                          *short, *run_args])
-    summary = run(cfg)
-    assert summary["iterations"] == 1
-    (checkpoint,) = (tmp_path / "runs" / "Quadcopter").glob("*/model_1.pt")
-    result = run(compose_config(["task=Quadcopter", "num_envs=2", "test=True", f"checkpoint={checkpoint}", *short,
-                                 *run_args]))
-    assert result["episodes"] == 2
+    train_one_iteration_then_test("Quadcopter", tmp_path / "runs", run_args, ["task.env.episodeLength_s=0.1"])
 
 
 def test_missing_rotor_bodies_is_a_one_line_error_naming_the_key():

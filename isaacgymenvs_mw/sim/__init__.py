@@ -54,6 +54,7 @@ from isaacgymenvs_mw.sim.request import (  # noqa: E402
     torque_speed_limits,
 )
 from isaacgymenvs_mw.sim.scene import AssetView  # noqa: E402
+from isaacgymenvs_mw.sim.sensors import SENSOR_TYPES, SensorSpec, sensor_specs  # noqa: E402
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
     TERRAIN_TYPES,
@@ -70,6 +71,9 @@ __all__ = [
     "DRIVE_MODES",
     "SIM_KEYS",
     "SceneAsset",
+    "SENSOR_TYPES",
+    "SensorSpec",
+    "sensor_specs",
     "asset_path",
     "check_sim_keys",
     "request_from_config",

@@ -22,6 +22,7 @@ import numpy as np
 
 from isaacgymenvs_mw.sim.cameras import CameraSpec, add_cameras
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
+from isaacgymenvs_mw.sim.sensors import SensorSpec, add_sensors
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
 from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
 from isaacgymenvs_mw.utils.config import real_number
@@ -142,6 +143,8 @@ class ModelRequest:
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
     # Cameras (env.cameras, sim/cameras.py), added on their bodies once the scene is composed.
     cameras: Sequence[CameraSpec] = ()
+    # Sensors the task YAML declares (env.sensors, sim/sensors.py), added once the scene is composed.
+    sensors: Sequence[SensorSpec] = ()
     # Step one world in MuJoCo C at build time to see whether the drives diverge (sim.stabilityProbe, sim/stability.py).
     stability_probe: bool = True
 
@@ -277,8 +280,8 @@ def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> lis
 
 
 def build_model(request: ModelRequest) -> mujoco.MjModel:
-    """Compile the task's model: asset + base + ground + actuators + scene assets + contact sensors + solver
-    options."""
+    """Compile the task's model: asset + base + ground + actuators + scene assets + cameras + declared sensors +
+    contact sensors + solver options."""
     # A copy: building edits the spec, and the request's parsed spec must stay as the file says for a second build.
     spec = request.spec.copy() if request.spec is not None else load_spec(request.asset_file,
                                                                           request.collapse_fixed_joints)
@@ -340,6 +343,7 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
             geom.contype, geom.conaffinity = contype, conaffinity
     _set_geom_contacts(spec, request.geom_contacts)
     add_cameras(spec, request.cameras, lambda pattern, key: _one_body(spec, pattern, key))
+    add_sensors(spec, request.sensors)
 
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:

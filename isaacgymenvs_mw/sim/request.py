@@ -24,6 +24,7 @@ from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, M
                                           SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names,
                                           match_joint_numbers, match_joint_values, movable_joint_names)
 from isaacgymenvs_mw.sim.cameras import camera_specs
+from isaacgymenvs_mw.sim.sensors import sensor_specs
 from isaacgymenvs_mw.utils.config import check_entry, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
 
@@ -90,6 +91,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
         assets=scene_assets(env.get("assets"), yaml_dir, assets_dir, collapse),
         geom_contacts=geom_contacts(env.get("contact")),
         cameras=camera_specs(env.get("cameras")),
+        sensors=sensor_specs(env.get("sensors")),
         stability_probe=stability_probe(sim),
     )
     return request, torque_speed

@@ -23,6 +23,7 @@ from isaacgymenvs_mw.sim.cameras import CameraSpec, Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import KernelLoad, init_warp
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
+from isaacgymenvs_mw.sim.sensors import SensorViews
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
 
@@ -188,6 +189,7 @@ class Simulator:
         self.subtree_com = wp.to_torch(d.subtree_com)
         self._body_rootid = torch.tensor(m.body_rootid, device=self.device, dtype=torch.long)
         self.sensordata = wp.to_torch(d.sensordata)
+        self.sensors = SensorViews(m, self.sensordata)  # named slices of sensordata: self.sensor(name)
         self.xfrc_applied = wp.to_torch(d.xfrc_applied)
         self.overflow = wp.to_torch(d.overflow)
         self._qpos0 = wp.to_torch(self.model.qpos0)
@@ -287,6 +289,13 @@ class Simulator:
         self.torque_speed = TorqueSpeedLimit(self.mj_model, self.model, self.data, self.num_worlds, self.device,
                                              saturation, limit, speed)
         self.recapture()
+
+    def sensor(self, name: str, key: str = "sensor") -> torch.Tensor:
+        """(num_worlds, dim) torch view of the model's sensor ``name`` (an MJCF ``<sensor>`` or an ``env.sensors``
+        entry): a slice of ``sensordata``, no copy, rewritten in place by each physics step (sim/sensors.py says
+        which state it describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for the
+        error when there is none of that name."""
+        return self.sensors.view(name, key)
 
     def contact_columns(self, bodies: Sequence[str]) -> torch.Tensor:
         """Columns of ``sensordata`` holding each body's net contact force, (len(bodies), 3); build once, reuse.

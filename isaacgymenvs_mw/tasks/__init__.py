@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from isaacgymenvs_mw.tasks.allegro_hand import AllegroHand
 from isaacgymenvs_mw.tasks.ant import Ant
+from isaacgymenvs_mw.tasks.ball_balance import BallBalance
 from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
@@ -31,6 +32,7 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "Ant": Ant,
     "Anymal": Anymal,
     "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain
+    "BallBalance": BallBalance,
     "Cartpole": Cartpole,
     "CartpoleCamera": CartpoleCamera,
     "CartpoleCameraDepth": CartpoleCamera,  # same class; cfg/task/CartpoleCameraDepth.yaml observes depth

@@ -1,0 +1,121 @@
+"""Sensors by name (sim/sensors.py): MJCF sensors and env.sensors entries as torch views of sensordata, checked
+against MuJoCo C (``mj_forward`` on the same model and state, read by ``model.sensor(name).adr / dim``)."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Simulator, SolverOptions, build_model, sensor_specs
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+# A two-link arm hanging from the world, driven at both joints, with MJCF force / torque sensors at the elbow (the
+# interaction between the forearm and the upper arm) and a frame orientation sensor at the wrist.
+ARM = """<mujoco model="arm">
+  <worldbody>
+    <body name="upper" pos="0 0 1">
+      <joint name="shoulder" type="hinge" axis="0 1 0"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03" mass="1"/>
+      <body name="lower" pos="0.3 0 0" euler="20 0 0">
+        <joint name="elbow" type="hinge" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0.25 0 0" size="0.025" mass="0.6"/>
+        <site name="elbow_site" pos="0 0 0" euler="0 30 0"/>
+        <site name="wrist" pos="0.25 0 0" euler="10 0 45"/>
+      </body>
+    </body>
+  </worldbody>
+  <sensor>
+    <force name="elbow_force" site="elbow_site"/>
+    <torque name="elbow_torque" site="elbow_site"/>
+    <framequat name="wrist_quat" objtype="site" objname="wrist"/>
+  </sensor>
+</mujoco>
+"""
+DECLARED = {"imu": {"type": "imu", "site": "wrist"}, "forearm_pos": {"type": "framepos", "body": "lower"}}
+NAMES = ["elbow_force", "elbow_torque", "wrist_quat", "imu", "forearm_pos"]
+WORLDS = 3
+
+
+def build(tmp_path, declared=DECLARED) -> mujoco.MjModel:
+    path = tmp_path / "arm.xml"
+    path.write_text(ARM)
+    request = ModelRequest(asset_file=path, fix_base=True, keep_asset_contacts=True,
+                           drives={j: JointDrive("position", 20.0, 1.0) for j in ("shoulder", "elbow")},
+                           options=SolverOptions(dt=0.005, enable_contacts=False), sensors=sensor_specs(declared),
+                           stability_probe=False)
+    return build_model(request)
+
+
+def reference(model: mujoco.MjModel, qpos, qvel, ctrl, name: str) -> np.ndarray:
+    """MuJoCo C's value of sensor ``name`` (an imu: its two parts) at this state."""
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
+    mujoco.mj_forward(model, data)
+    parts = [f"{name}_accelerometer", f"{name}_gyro"] if name == "imu" else [name]
+    return np.concatenate([data.sensordata[model.sensor(p).adr[0]:][:model.sensor(p).dim[0]] for p in parts])
+
+
+def test_sensor_views_equal_mujoco_c_and_are_refreshed_in_place(tmp_path):
+    model = build(tmp_path)
+    sim = Simulator(model, WORLDS, "cpu")
+    views = {name: sim.sensor(name) for name in NAMES}
+    dims = {name: v.shape[1] for name, v in views.items()}
+    assert dims == {"elbow_force": 3, "elbow_torque": 3, "wrist_quat": 4, "imu": 6, "forearm_pos": 3}
+    storage = sim.sensordata.untyped_storage().data_ptr()
+    assert all(v.untyped_storage().data_ptr() == storage for v in views.values())  # slices, not copies
+
+    gen = torch.Generator().manual_seed(3)
+    sim.qpos.copy_(torch.rand(WORLDS, 2, generator=gen) * 2 - 1)
+    sim.qvel.copy_(torch.rand(WORLDS, 2, generator=gen) * 4 - 2)
+    sim.ctrl.copy_(torch.rand(WORLDS, 2, generator=gen) - 0.5)
+    for step in range(3):
+        before = [t.clone().double().numpy() for t in (sim.qpos, sim.qvel, sim.ctrl)]
+        previous = {name: v.clone() for name, v in views.items()}
+        sim.simulate()  # sensors describe the state this step started from
+        for name, view in views.items():
+            assert not torch.equal(view, previous[name]) or step == 0 and name == "forearm_pos", name
+            for w in range(WORLDS):
+                expected = reference(model, before[0][w], before[1][w], before[2][w], name)
+                np.testing.assert_allclose(view[w].double().numpy(), expected, rtol=1e-4, atol=1e-4,
+                                           err_msg=f"{name}, world {w}, step {step}")
+    # The forces are not trivial: the forearm's weight and the drives load the elbow.
+    assert float(views["elbow_force"].norm(dim=1).min()) > 1.0
+    assert float(views["imu"][:, 3:].norm(dim=1).min()) > 0.1  # the gyro sees the arm turning
+
+
+def test_imu_parts_are_named_and_survive_a_saved_model(tmp_path):
+    model = build(tmp_path)
+    assert [model.sensor(i).name for i in range(model.nsensor)] == [
+        "elbow_force", "elbow_torque", "wrist_quat", "imu_accelerometer", "imu_gyro", "forearm_pos"]
+    path = tmp_path / "arm.mjb"
+    Simulator(model, 1, "cpu").save_model(str(path))
+    loaded = Simulator(mujoco.MjModel.from_binary_path(str(path)), 1, "cpu")
+    assert loaded.sensor("imu").shape == (1, 6)
+
+
+def test_a_missing_sensor_is_one_line_naming_the_key_the_value_and_the_sensors(tmp_path):
+    sim = Simulator(build(tmp_path), 1, "cpu")
+    with pytest.raises(ConfigError) as err:
+        sim.sensor("elbow_frc", key="env.legForceSensors")
+    assert str(err.value) == ("env.legForceSensors: 'elbow_frc' is not a sensor of the model; its sensors: "
+                              "['elbow_force', 'elbow_torque', 'wrist_quat', 'imu_accelerometer', 'imu_gyro', "
+                              "'forearm_pos', 'imu']")
+
+
+@pytest.mark.parametrize("declared, message", [
+    ({"imu": {"type": "imus", "site": "wrist"}}, r"^env\.sensors\.imu\.type='imus' is invalid: give one of \['imu', "),
+    ({"imu": {"type": "imu"}}, r"^env\.sensors\.imu: give exactly one site for a sensor of type imu "),
+    ({"imu": {"type": "imu", "body": "lower"}}, r"^env\.sensors\.imu: give exactly one site for a sensor of type "),
+    ({"imu": {"type": "imu", "site": "wrist", "noise": 0.1}}, r"^env\.sensors\.imu: unknown key\(s\) \['noise'\]"),
+    ({"imu": {"type": "imu", "site": "hand"}},
+     r"^env\.sensors\.imu\.site='hand' is not a site of the model; sites: \['elbow_site', 'wrist'\]$"),
+    ({"p": {"type": "framepos", "body": "hand"}}, r"^env\.sensors\.p\.body='hand' is not a body of the model; "),
+    ({"wrist_quat": {"type": "gyro", "site": "wrist"}},
+     r"^env\.sensors\.wrist_quat: the model already has a sensor named \['wrist_quat'\]"),
+])
+def test_bad_sensor_declarations_are_one_line_naming_the_key(tmp_path, declared, message):
+    with pytest.raises(ConfigError, match=message) as err:
+        build(tmp_path, declared)
+    assert "\n" not in str(err.value)
