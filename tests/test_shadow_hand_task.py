@@ -2,7 +2,7 @@
 against the plain-Python IsaacGymEnvs formula, the four observation types' sizes and entries against their
 definitions (fingertips against MuJoCo C's kinematics, the force-torque columns against the sensors), the 20
 actions over the servo ranges with the distal joints coupled, reset draws that respect the coupling, MuJoCo Warp
-against MuJoCo C over 40 policy steps, the one-line error for an unknown observation type, the
+against MuJoCo C over 40 policy steps, the OpenAI_FF variant, the one-line error for an unknown observation type, the
 randomisation block, and one training iteration plus test mode on the CPU."""
 
 from __future__ import annotations
@@ -192,6 +192,21 @@ def test_mujoco_warp_and_mujoco_c_agree_and_the_distal_joints_follow():
     np.testing.assert_allclose(task.sim.sensordata[0].numpy(), d.sensordata, atol=2e-2)
 
 
+def test_openai_ff_variant_is_ige_setting_with_an_asymmetric_critic():
+    task = make("ShadowHandOpenAI_FF", num_envs=2, seed=0, **CPU)
+    out = task.reset()
+    assert out["obs"].shape == (2, 42) and out["states"].shape == (2, 211)
+    assert task.control_freq_inv == 6 and task.max_episode_length == 160  # 20 Hz, IGE's resetTime 8 s
+    assert task.k["successTolerance"] == 0.4 and task.k["actionsMovingAverage"] == 0.3
+    assert task.max_consecutive_successes == 50
+    assert task.rewards.weights[task.rewards.names.index("fall")].item() == -50.0
+    force = task.state_layout.columns(["dof_force"], "test")
+    task.step(torch.ones(2, 20))
+    task.compute_observations()  # unclipped
+    np.testing.assert_allclose(task.states_buf[:, force].numpy(), (10.0 * task.sim.qfrc_actuator[:, :24]).numpy(),
+                               atol=1e-5)
+
+
 def test_an_unknown_observation_type_is_a_one_line_error_naming_the_key():
     message = (r"^task\.env\.observationType='openAI' is invalid: choose one of "
                r"\['openai', 'full_no_vel', 'full', 'full_state'\]$")
@@ -216,12 +231,13 @@ def test_the_shipped_randomisation_block_applies_when_turned_on():
     assert bool(torch.isfinite(rew).all())
 
 
-def test_training_one_iteration_then_test_mode_reports_consecutive_successes(tmp_path, run_args):
-    overrides = ["task=ShadowHand", "num_envs=4", "task.env.episodeLength_s=0.1", *run_args]  # 6 steps
+@pytest.mark.parametrize("task, seconds", [("ShadowHand", 0.1), ("ShadowHandOpenAI_FF", 0.3)])  # 6 steps each
+def test_training_one_iteration_then_test_mode_reports_consecutive_successes(tmp_path, run_args, task, seconds):
+    overrides = [f"task={task}", "num_envs=4", f"task.env.episodeLength_s={seconds}", *run_args]
     summary = run(compose_config([*overrides, "max_iterations=1", "train.runner.num_steps_per_env=8"]))
     assert summary["iterations"] == 1
     assert "consecutive_successes" in summary and "successes" in summary
-    run_dir = [p for p in (tmp_path / "runs" / "ShadowHand").iterdir() if p.is_dir()][0]
+    run_dir = [p for p in (tmp_path / "runs" / task).iterdir() if p.is_dir()][0]
     result = run(compose_config([*overrides, "test=True", f"checkpoint={run_dir / 'model_1.pt'}"]))
     written = json.loads((run_dir / "eval.json").read_text())
     assert written["consecutive_successes"] == result["consecutive_successes"] and written["episodes"] == 4

@@ -47,6 +47,7 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "Humanoid": Humanoid,
     "Quadcopter": Quadcopter,
     "ShadowHand": ShadowHand,
+    "ShadowHandOpenAI_FF": ShadowHand,  # same class; cfg/task/ShadowHandOpenAI_FF.yaml: OpenAI's setting
 }
 
 
