@@ -2,8 +2,8 @@
 against the plain-Python IsaacGymEnvs formula, the four observation types' sizes and entries against their
 definitions (fingertips against MuJoCo C's kinematics, the force-torque columns against the sensors), the 20
 actions over the servo ranges with the distal joints coupled, reset draws that respect the coupling, MuJoCo Warp
-against MuJoCo C over 40 policy steps, the OpenAI_FF variant, the one-line error for an unknown observation type, the
-randomisation block, and one training iteration plus test mode on the CPU."""
+against MuJoCo C over 40 policy steps, IGE's random pushes on the cube, the OpenAI_FF variant, the one-line error for
+an unknown observation type, the randomisation block, and one training iteration plus test mode on the CPU."""
 
 from __future__ import annotations
 
@@ -192,13 +192,52 @@ def test_mujoco_warp_and_mujoco_c_agree_and_the_distal_joints_follow():
     np.testing.assert_allclose(task.sim.sensordata[0].numpy(), d.sensordata, atol=2e-2)
 
 
+def cube_velocity_gain(task, force_body: np.ndarray) -> np.ndarray:
+    """(N, 3) velocity a free cube at rest gains over one policy step from gravity and a constant force given in its
+    frame at its centre of mass (it does not turn: no torque)."""
+    mass = task.sim.mj_model.body("object/cube").mass[0]
+    world = np.zeros_like(force_body)
+    for i, (f, q) in enumerate(zip(force_body, task.cube.root_quat.double().numpy())):
+        mujoco.mju_rotVecQuat(world[i], f, q)
+    return (world / mass + [0.0, 0.0, -9.81]) * task.control_dt
+
+
+def test_random_pushes_are_ige_draw_and_decay_and_move_the_cube():
+    """forceScale 2 with a new push every step (forceProbRange [1, 1]), the cube set aside from the hand, free: a push
+    is forceScale x mass x N(0, 1) per axis of the cube's frame and gives the cube its velocity in one step; with
+    (almost) no new pushes the last one shrinks by forceDecay^((1/60) / forceDecayInterval) per step."""
+    aside = ["task.env.assets.object.pos=[0.3,-0.39,0.6]", "task.env.fallDistance=10.0",
+             "task.env.resetPositionNoise=0.0", "task.env.forceScale=2.0"]
+    task = make("ShadowHand", num_envs=4, seed=0, **CPU, overrides=[*aside, "task.env.forceProbRange=[1.0,1.0]"])
+    task.reset()
+    assert torch.equal(task.push_forces, torch.zeros(4, 1, 3)) and torch.equal(task.push_prob, torch.ones(4))
+    task.step(torch.zeros(4, 20))
+    push = task.push_forces[:, 0].double().numpy()
+    mass = task.sim.mj_model.body("object/cube").mass[0]
+    assert 0.05 < np.abs(push / (2.0 * mass)).mean() < 3.0 and len(np.unique(push)) == 12  # drawn, per env and axis
+    np.testing.assert_allclose(task.cube.root_lin_vel.numpy(), cube_velocity_gain(task, push), atol=2e-4)
+
+    rare = make("ShadowHand", num_envs=2, seed=0, **CPU, overrides=[*aside, "task.env.forceProbRange=[1e-9,1e-9]"])
+    rare.reset()
+    rare.push_forces[:, 0] = torch.tensor([[0.5, 0.0, 0.0], [0.0, -0.3, 0.2]])
+    start = rare.push_forces.clone()
+    rare.step(torch.zeros(2, 20))
+    decayed = start * 0.99 ** ((1 / 60) / 0.08)
+    np.testing.assert_allclose(rare.push_forces.numpy(), decayed.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(rare.cube.root_lin_vel.numpy(), cube_velocity_gain(rare, decayed[:, 0].double().numpy()),
+                               atol=2e-4)
+    bad = r"^task\.env\.forceProbRange=\[0\.0, 0\.1\] is invalid: give \[low, high\] with 0 < low <= high <= 1"
+    with pytest.raises(ConfigError, match=bad):
+        make("ShadowHand", num_envs=1, **CPU, overrides=["task.env.forceScale=1.0", "task.env.forceProbRange=[0.0,0.1]"])
+
+
 def test_openai_ff_variant_is_ige_setting_with_an_asymmetric_critic():
     task = make("ShadowHandOpenAI_FF", num_envs=2, seed=0, **CPU)
     out = task.reset()
     assert out["obs"].shape == (2, 42) and out["states"].shape == (2, 211)
     assert task.control_freq_inv == 6 and task.max_episode_length == 160  # 20 Hz, IGE's resetTime 8 s
     assert task.k["successTolerance"] == 0.4 and task.k["actionsMovingAverage"] == 0.3
-    assert task.max_consecutive_successes == 50
+    assert task.max_consecutive_successes == 50 and task.force_scale == 1.0
     assert task.rewards.weights[task.rewards.names.index("fall")].item() == -50.0
     force = task.state_layout.columns(["dof_force"], "test")
     task.step(torch.ones(2, 20))

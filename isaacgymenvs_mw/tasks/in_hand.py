@@ -12,7 +12,8 @@ the goal position and the actions' size, and adds ``reachGoalBonus`` when the or
 ``successTolerance``: a success, after which a new goal orientation is drawn and the episode goes on. The episode
 ends when the cube falls (``fallDistance`` from the goal position), at the time limit, or (with
 ``maxConsecutiveSuccesses`` > 0) after that many successes. ``consecutive_successes`` is IsaacGymEnvs' metric: a
-running average, over the episodes that end, of the successes in each.
+running average, over the episodes that end, of the successes in each. With ``forceScale`` > 0 the cube is pushed
+at random as IGE pushes it (``_push_cube``).
 
 A servo may drive a tendon of several joints (the Shadow hand's J0 drives J1 + J2, which an equality holds equal):
 its target then spans the tendon's range, so that each joint gets the target IsaacGymEnvs gives the joint it
@@ -74,6 +75,9 @@ class InHandTask(VecTask):
         self.max_consecutive_successes = whole_number(env.get("maxConsecutiveSuccesses", 0),
                                                       "env.maxConsecutiveSuccesses", 0)
         self.relative_control = bool(env.get("useRelativeControl", False))
+        self.force_scale = float(env.get("forceScale", 0.0))
+        if self.force_scale > 0.0:
+            self._check_push_settings(env)
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         n, dev = self.num_envs, self.device
@@ -113,6 +117,13 @@ class InHandTask(VecTask):
         scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
         self.rewards = RewardTerms(self, scales, n, dev, key="env")
         self.terms: dict[str, torch.Tensor] = {}
+        if self.force_scale > 0.0:
+            # IGE's pushes: a force on the cube that decays, replaced at random moments by a new one (_push_cube)
+            self.cube_body = self.sim.asset("object").body_names[0]
+            self.cube_mass = float(m.body(self.cube_body).mass[0])  # nominal, as IGE (not the randomised mass)
+            self.push_forces = torch.zeros((n, 1, 3), device=dev)  # cube frame (IGE: LOCAL_SPACE), N
+            self.push_prob = torch.zeros(n, device=dev)
+            self._draw_push_prob(torch.ones(n, dtype=torch.bool, device=dev))
         self.bind_hand()
         self.build_observation_layouts()
 
@@ -131,6 +142,37 @@ class InHandTask(VecTask):
         targets = torch.clamp(targets, self.target_lower, self.target_upper)
         self.prev_targets.copy_(targets)
         self.sim.ctrl[:, :self.num_actions] = targets
+        if self.force_scale > 0.0:
+            self._push_cube()
+
+    def _check_push_settings(self, env) -> None:
+        lo, hi = (float(v) for v in env["forceProbRange"])
+        if not 0.0 < lo <= hi <= 1.0:
+            raise ConfigError(f"env.forceProbRange={[lo, hi]} is invalid: give [low, high] with 0 < low <= high <= 1 "
+                              "(the chance of a new push per policy step)")
+        decay, interval = float(env["forceDecay"]), float(env["forceDecayInterval"])
+        if not 0.0 < decay <= 1.0 or interval <= 0.0:
+            raise ConfigError(f"env.forceDecay={decay}, env.forceDecayInterval={interval} are invalid: give a decay "
+                              "in (0, 1] and an interval > 0 (s)")
+        self.push_prob_log_range = (math.log(lo), math.log(hi))
+        # IGE multiplies the force by forceDecay^(dt / forceDecayInterval) each policy step, dt its sim dt
+        self.push_decay = decay ** (IGE_SIM_DT / interval)
+
+    def _draw_push_prob(self, mask: torch.Tensor) -> None:
+        """Each masked env's chance of a new push per policy step, log-uniform over env.forceProbRange (IGE)."""
+        lo, hi = self.push_prob_log_range
+        drawn = torch.exp(lo + (hi - lo) * torch.rand(self.num_envs, device=self.device))
+        self.push_prob.copy_(torch.where(mask, drawn, self.push_prob))
+
+    def _push_cube(self) -> None:
+        """IGE's random forces: the last push decays; with each env's chance, a new one replaces it, Gaussian per
+        axis of the cube's frame with standard deviation forceScale x the cube's mass (N); it acts at the cube's
+        centre of mass for the coming policy step."""
+        self.push_forces.mul_(self.push_decay)
+        new = (torch.rand(self.num_envs, device=self.device) < self.push_prob).view(-1, 1, 1)
+        fresh = torch.randn_like(self.push_forces) * (self.cube_mass * self.force_scale)
+        self.push_forces.copy_(torch.where(new, fresh, self.push_forces))
+        self.apply_body_forces(self.push_forces, bodies=[self.cube_body], frame="body")
 
     # ------------------------------------------------------------------ post-physics
     def refresh_state(self) -> None:
@@ -273,6 +315,9 @@ class InHandTask(VecTask):
         self.prev_targets.copy_(torch.where(rows, targets, self.prev_targets))
         self.sim.ctrl[:, :self.num_actions] = torch.where(rows, targets, self.sim.ctrl[:, :self.num_actions])
         self.actions.masked_fill_(rows, 0.0)
+        if self.force_scale > 0.0:
+            self.push_forces.masked_fill_(mask.view(-1, 1, 1), 0.0)
+            self._draw_push_prob(mask)
 
         # The cube: its start position with uniform noise, a random orientation (IGE's draw), at rest.
         noise = self.k["resetPositionNoise"] * (2.0 * torch.rand((n, 3), device=dev) - 1.0)

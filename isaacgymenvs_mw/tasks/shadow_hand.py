@@ -20,7 +20,7 @@ joint and cube state (IGE refreshes them after the step).
 Differences from IsaacGymEnvs, on purpose (besides the in-hand tasks'): the hand model is this project's (Shadow's
 published figures; the distal coupling is an equality J1 = J2, IGE's a tendon with a limit); the fingertip force
 sensors are MuJoCo's force and torque sensors on the distal frames (the force the phalanx receives through its joint,
-in its frame); IGE's random pushes on the cube (``forceScale``, 1.0 in OpenAI_FF) are not implemented.
+in its frame).
 """
 
 from __future__ import annotations
