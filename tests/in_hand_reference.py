@@ -13,7 +13,8 @@ import torch
 
 def reference_reward(obj_pos, obj_quat, goal_pos, goal_quat, actions, tol=0.1, fall=0.24, fall_penalty=0.0):
     """IsaacGymEnvs' compute_hand_reward for one env, in plain Python (xyzw there, wxyz here; the formula is the
-    same on the vector part of the relative quaternion), with the constants of AllegroHand.yaml and ShadowHand.yaml (the same)."""
+    same on the vector part of the relative quaternion), with the constants of AllegroHand.yaml and ShadowHand.yaml
+    (the same)."""
     goal_dist = math.sqrt(sum((p - g) ** 2 for p, g in zip(obj_pos, goal_pos)))
     rel = np.zeros(4)
     conj = np.array(goal_quat) * [1, -1, -1, -1]

@@ -12,8 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from hand_kinematics import (all_colliding, assert_primitive_hand_without_self_contacts, hand_and_cube, pose,
-                             posed)
+from hand_kinematics import all_colliding, assert_primitive_hand_without_self_contacts, hand_and_cube, pose, posed
 
 ALLEGRO = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "allegro_hand.xml"
 FINGERS = ("index", "middle", "ring", "thumb")

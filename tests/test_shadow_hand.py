@@ -13,8 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from hand_kinematics import (all_colliding, assert_primitive_hand_without_self_contacts, hand_and_cube, pose,
-                             posed)
+from hand_kinematics import all_colliding, assert_primitive_hand_without_self_contacts, hand_and_cube, pose, posed
 
 SHADOW = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "shadow_hand.xml"
 FINGERS = ("ff", "mf", "rf", "lf")

@@ -228,7 +228,8 @@ def test_random_pushes_are_ige_draw_and_decay_and_move_the_cube():
                                atol=2e-4)
     bad = r"^task\.env\.forceProbRange=\[0\.0, 0\.1\] is invalid: give \[low, high\] with 0 < low <= high <= 1"
     with pytest.raises(ConfigError, match=bad):
-        make("ShadowHand", num_envs=1, **CPU, overrides=["task.env.forceScale=1.0", "task.env.forceProbRange=[0.0,0.1]"])
+        make("ShadowHand", num_envs=1, **CPU,
+             overrides=["task.env.forceScale=1.0", "task.env.forceProbRange=[0.0,0.1]"])
 
 
 def test_openai_ff_variant_is_ige_setting_with_an_asymmetric_critic():

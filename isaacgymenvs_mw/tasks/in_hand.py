@@ -28,6 +28,7 @@ goal after a success is shown in the same step's observation (IGE: the next step
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import mujoco
 import numpy as np
@@ -95,8 +96,8 @@ class InHandTask(VecTask):
         transmission = servo_transmission(m, joint_ids, self.num_actions)
         self.transmission = torch.tensor(transmission, dtype=torch.float32, device=dev)
         self.couplings = joint_couplings(m, joint_ids)
-        # Relative control: IGE moves a joint's target by dofSpeedScale x its sim dt x the action; a servo on a
-        # tendon of joints held equal moves by that per joint.
+        # Relative control: IGE moves a joint's target by dofSpeedScale x its sim dt x the action; a servo on the
+        # tendon of two joints held equal (the Shadow hand's J1 + J2) moves twice as far, that much for each joint.
         per_joint = torch.tensor(transmission.sum(axis=1), dtype=torch.float32, device=dev)
         self.relative_step = self.k["dofSpeedScale"] * IGE_SIM_DT * per_joint
 
@@ -145,7 +146,7 @@ class InHandTask(VecTask):
         if self.force_scale > 0.0:
             self._push_cube()
 
-    def _check_push_settings(self, env) -> None:
+    def _check_push_settings(self, env: Mapping) -> None:
         lo, hi = (float(v) for v in env["forceProbRange"])
         if not 0.0 < lo <= hi <= 1.0:
             raise ConfigError(f"env.forceProbRange={[lo, hi]} is invalid: give [low, high] with 0 < low <= high <= 1 "
@@ -345,15 +346,19 @@ def servo_transmission(m: mujoco.MjModel, joint_ids: list[int], num_servos: int)
         target, gear = int(m.actuator_trnid[a, 0]), float(m.actuator_gear[a, 0])
         kind = int(m.actuator_trntype[a])
         if kind == int(mujoco.mjtTrn.mjTRN_JOINT):
-            out[a, column[target]] = gear
-        elif kind == int(mujoco.mjtTrn.mjTRN_TENDON) and int(m.tendon_num[target]) > 0 and all(
-                int(m.wrap_type[w]) == int(mujoco.mjtWrap.mjWRAP_JOINT)
-                for w in range(m.tendon_adr[target], m.tendon_adr[target] + m.tendon_num[target])):
-            for w in range(m.tendon_adr[target], m.tendon_adr[target] + m.tendon_num[target]):
-                out[a, column[int(m.wrap_objid[w])]] += gear * float(m.wrap_prm[w])
+            wraps = [(target, 1.0)]
+        elif kind == int(mujoco.mjtTrn.mjTRN_TENDON):
+            first = int(m.tendon_adr[target])
+            joint_wrap = int(mujoco.mjtWrap.mjWRAP_JOINT)  # a fixed tendon: a sum of joints (else: not one)
+            wraps = [(int(m.wrap_objid[w]), float(m.wrap_prm[w])) if int(m.wrap_type[w]) == joint_wrap else (-1, 0.0)
+                     for w in range(first, first + int(m.tendon_num[target]))]
         else:
+            wraps = [(-1, 0.0)]
+        if not wraps or any(joint not in column for joint, _ in wraps):
             raise ConfigError(f"env.asset: actuator {m.actuator(a).name!r} drives neither a hand joint nor a fixed "
                               "tendon of hand joints; the in-hand tasks' servos must")
+        for joint, coef in wraps:
+            out[a, column[joint]] += gear * coef
     return out
 
 
