@@ -12,6 +12,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from hand_kinematics import all_colliding, assert_primitive_hand_without_self_contacts, hand_and_cube, pose, posed
+
 ALLEGRO = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "allegro_hand.xml"
 FINGERS = ("index", "middle", "ring", "thumb")
 JOINTS = [f"{f}_joint_{i}" for f in FINGERS for i in range(4)]
@@ -40,12 +42,6 @@ def quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
     ])
-
-
-def pose(r: np.ndarray | None = None, p=(0.0, 0.0, 0.0)) -> np.ndarray:
-    t = np.eye(4)
-    t[:3, :3], t[:3, 3] = np.eye(3) if r is None else r, p
-    return t
 
 
 # Hand root (IsaacGymEnvs allegro_touch_sensor.urdf allegro_mount) -> URDF palm_link: rpy (0, -pi/2, pi/4), xyz below;
@@ -105,20 +101,10 @@ def model() -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_path(str(ALLEGRO))
 
 
-def joint_ranges(m: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-    r = np.array([m.joint(n).range for n in JOINTS])
-    return r[:, 0], r[:, 1]
-
-
 # ------------------------------------------------------------------------------------------------- kinematics
 def test_fingertips_equal_the_forward_kinematics_product(model):
-    m, d = model, mujoco.MjData(model)
-    lo, hi = joint_ranges(m)
-    rng = np.random.default_rng(34)
-    adr = [int(m.jnt_qposadr[m.joint(n).id]) for n in JOINTS]
-    for q in [np.zeros(16), lo, hi, (lo + hi) / 2] + [rng.uniform(lo, hi) for _ in range(20)]:
-        d.qpos[adr] = q
-        mujoco.mj_kinematics(m, d)
+    m = model
+    for q, d in posed(m, JOINTS, seed=34):
         for k, finger in enumerate(FINGERS):
             expected = fingertip(finger, q[4 * k: 4 * k + 4])
             # 2e-6: the file writes the root-to-palm offset to 6 decimals
@@ -204,22 +190,14 @@ def test_joint_ranges_and_drives_equal_isaacgymenvs(model):
 
 # ------------------------------------------------------------------------------------------------- contacts
 def test_primitive_shapes_and_a_contact_free_zero_pose(model):
-    m, d = model, mujoco.MjData(model)
-    primitives = {mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CAPSULE}
-    assert m.nmesh == 0 and all(int(t) in primitives for t in m.geom_type)
-    assert m.geom_contype.tolist() == [2] * m.ngeom and m.geom_conaffinity.tolist() == [1] * m.ngeom
+    m = model
+    assert_primitive_hand_without_self_contacts(m, {mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CAPSULE})
     assert {m.body(int(b)).name for b in m.geom_bodyid} == {m.body(b).name for b in range(1, m.nbody)}
-    mujoco.mj_forward(m, d)
-    assert d.ncon == 0
 
     # Every hand geom made to touch every other: only the links seated in the palm overlap it (the pairs the
     # menagerie model excludes); no two fingers and no finger and the palm face touch, at zero and at IsaacGymEnvs'
     # start (thumb joint 0 at its lower limit, as Isaac Lab's ALLEGRO_HAND_CFG).
-    spec = mujoco.MjSpec.from_file(str(ALLEGRO))
-    for g in spec.geoms:
-        g.contype, g.conaffinity = 1, 1
-    m2 = spec.compile()
-    d2 = mujoco.MjData(m2)
+    m2, d2 = all_colliding(ALLEGRO)
     seated = {"index_link_0", "middle_link_0", "ring_link_0", "thumb_link_0", "thumb_link_1"}
     for thumb_0 in (0.0, RANGES[12][0]):
         d2.qpos[:] = 0
@@ -233,21 +211,13 @@ def test_a_cube_dropped_on_the_upturned_palm_comes_to_rest_there():
     """IsaacGymEnvs' hand pose and cube (0.065 m, density 400: 0.110 kg), 2 s at its physics step 1/120 s
     (dt 1/60, 2 substeps), zero joint targets; the elliptic cone with impratio 10 of in-hand MuJoCo scenes (the
     pyramidal cone at impratio 1 lets the cube creep about 1 mm/s down the 5.4 deg slope of the palm)."""
-    spec = mujoco.MjSpec.from_file(str(ALLEGRO))
-    spec.option.timestep = 1 / 120
-    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    spec.option.impratio = 10
-    palm = spec.body("palm")
-    palm.pos, palm.quat = IGE_HAND_POS, IGE_HAND_QUAT
     # the palm face (+x side of the palm box) in the world, from the hand's pose written out here
     world = pose(quat_matrix(*IGE_HAND_QUAT), IGE_HAND_POS) @ menagerie_palm()
     normal = world[:3, :3] @ [1, 0, 0]
     face = (world @ [0.0111, 0, -0.0475, 1])[:3]  # box centre x -0.0093 + half size 0.0204
     half = CUBE_SIDE / 2
-    cube = spec.worldbody.add_body(name="cube", pos=face + normal * (half + 0.02))  # 2 cm above the face
-    cube.add_freejoint()
-    cube.add_geom(name="cube", type=mujoco.mjtGeom.mjGEOM_BOX, size=[half] * 3, density=CUBE_DENSITY)
-    m = spec.compile()
+    m = hand_and_cube(ALLEGRO, "palm", (IGE_HAND_POS, IGE_HAND_QUAT), face + normal * (half + 0.02),  # 2 cm above
+                      CUBE_SIDE, CUBE_DENSITY)
     d = mujoco.MjData(m)
     assert m.body("cube").mass[0] == pytest.approx(0.110, abs=5e-4)
     assert normal[2] > 0.99

@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 import torch
 
+from in_hand_reference import assert_reward_is_the_reference, place_cube, reference_reward
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
-from isaacgymenvs_mw.tasks.allegro_hand import hand_terms, random_rotation
+from isaacgymenvs_mw.tasks.in_hand import hand_terms, random_rotation
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import rotation_distance
@@ -56,23 +57,6 @@ def test_rotation_distance_is_the_angle_of_the_relative_rotation():
     ref = [math.acos(np.clip((np.trace(matrix(x) @ matrix(y).T) - 1.0) / 2.0, -1.0, 1.0)) for x, y in zip(a, b)]
     np.testing.assert_allclose(got, ref, atol=2e-6)
     np.testing.assert_allclose(got, angles, atol=2e-6)
-
-
-def reference_reward(obj_pos, obj_quat, goal_pos, goal_quat, actions, tol=0.1, fall=0.24, fall_penalty=0.0):
-    """IsaacGymEnvs' compute_hand_reward for one env, in plain Python (xyzw there, wxyz here; the formula is the
-    same on the vector part of the relative quaternion), with AllegroHand.yaml's constants."""
-    goal_dist = math.sqrt(sum((p - g) ** 2 for p, g in zip(obj_pos, goal_pos)))
-    rel = np.zeros(4)
-    conj = np.array(goal_quat) * [1, -1, -1, -1]
-    mujoco.mju_mulQuat(rel, np.array(obj_quat), conj)
-    rot_dist = 2.0 * math.asin(min(math.sqrt(sum(v * v for v in rel[1:])), 1.0))
-    reward = goal_dist * -10.0 + 1.0 / (abs(rot_dist) + 0.1) + sum(a * a for a in actions) * -0.0002
-    reached = abs(rot_dist) <= tol
-    if reached:
-        reward += 250.0
-    if goal_dist >= fall:
-        reward += fall_penalty
-    return reward, reached, goal_dist >= fall
 
 
 def compute_hand_reward(terms: dict[str, torch.Tensor], actions: torch.Tensor, dist_scale: float = -10.0,
@@ -123,15 +107,6 @@ def env():
                 overrides=["task.env.resetPositionNoise=0.0", "task.env.fallPenalty=-7.0"])
 
 
-def place_cube(env, pos, quat):
-    n = env.num_envs
-    mask = torch.ones(n, dtype=torch.bool)
-    zero = torch.zeros(n, 3)
-    env.sim.write_state(mask, root_pos=torch.tensor(pos, dtype=torch.float32),
-                        root_quat=torch.tensor(quat, dtype=torch.float32), root_lin_vel=zero, root_ang_vel=zero,
-                        asset="object", refresh=True)
-
-
 def test_a_success_pays_the_bonus_draws_a_new_goal_and_the_episode_goes_on(env):
     env.reset()
     goals = env.goal_quat.clone()
@@ -168,13 +143,7 @@ def test_reward_terms_sum_to_the_plain_function_times_reward_scale(env):
     pos = start + rng.normal(0.0, 0.05, (3, 3))
     quat = random_quats(rng, 3)
     quat[0] = env.goal_quat[0].numpy()
-    place_cube(env, pos, quat)
-    env.actions.copy_(torch.tensor(rng.uniform(-1, 1, (3, 16)), dtype=torch.float32))
-    env.refresh_state()
-    env.compute_reward()
-    ref = [reference_reward(p, q, g, gq, a, fall_penalty=-7.0)[0] for p, q, g, gq, a in
-           zip(pos, quat, env.goal_pos.numpy(), env.goal_quat.numpy(), env.actions.numpy())]
-    np.testing.assert_allclose(env.rew_buf.numpy(), 0.01 * np.array(ref), rtol=1e-4)
+    assert_reward_is_the_reference(env, pos, quat, rng.uniform(-1, 1, (3, 16)), fall_penalty=-7.0)
 
 
 def test_consecutive_successes_is_ige_running_average_over_resetting_envs():
