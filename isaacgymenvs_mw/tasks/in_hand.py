@@ -30,16 +30,21 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-import mujoco
-import numpy as np
 import torch
 
+from isaacgymenvs_mw.sim.couplings import joint_couplings, servo_transmission
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
-from isaacgymenvs_mw.utils.rotations import quat_about_axis, quat_conjugate, quat_mul, quat_rotate, rotation_distance
+from isaacgymenvs_mw.utils.rotations import (
+    quat_about_axis,
+    quat_conjugate,
+    quat_mul,
+    quat_rotate,
+    rotation_distance,
+)
 
 # IGE's sim dt (its hand tasks' physics step, 1/60 s with 2 substeps, whatever controlFrequencyInv): the time unit of
 # its relative control, kept so that dofSpeedScale means what it means there.
@@ -334,49 +339,6 @@ class InHandTask(VecTask):
         self.goal_quat.copy_(torch.where(mask.unsqueeze(1), random_rotation(self.num_envs, self.device),
                                          self.goal_quat))
         self.sim.mocap_quat[:, self.goal_marker] = self.goal_quat
-
-
-def servo_transmission(m: mujoco.MjModel, joint_ids: list[int], num_servos: int) -> np.ndarray:
-    """(servos, joints): each of the first ``num_servos`` actuators' length per radian of each hand joint, for
-    joint servos (gear) and servos on fixed tendons (gear x the tendon's coefficients); its length at a pose q is
-    ``transmission @ q``."""
-    column = {j: c for c, j in enumerate(joint_ids)}
-    out = np.zeros((num_servos, len(joint_ids)))
-    for a in range(num_servos):
-        target, gear = int(m.actuator_trnid[a, 0]), float(m.actuator_gear[a, 0])
-        kind = int(m.actuator_trntype[a])
-        if kind == int(mujoco.mjtTrn.mjTRN_JOINT):
-            wraps = [(target, 1.0)]
-        elif kind == int(mujoco.mjtTrn.mjTRN_TENDON):
-            first = int(m.tendon_adr[target])
-            joint_wrap = int(mujoco.mjtWrap.mjWRAP_JOINT)  # a fixed tendon: a sum of joints (else: not one)
-            wraps = [(int(m.wrap_objid[w]), float(m.wrap_prm[w])) if int(m.wrap_type[w]) == joint_wrap else (-1, 0.0)
-                     for w in range(first, first + int(m.tendon_num[target]))]
-        else:
-            wraps = [(-1, 0.0)]
-        if not wraps or any(joint not in column for joint, _ in wraps):
-            raise ConfigError(f"env.asset: actuator {m.actuator(a).name!r} drives neither a hand joint nor a fixed "
-                              "tendon of hand joints; the in-hand tasks' servos must")
-        for joint, coef in wraps:
-            out[a, column[joint]] += gear * coef
-    return out
-
-
-def joint_couplings(m: mujoco.MjModel, joint_ids: list[int]) -> list[tuple[int, int, float, float]]:
-    """(follower, leader, offset, ratio) hand-joint columns of each active joint equality that says
-    follower = offset + ratio x leader (MuJoCo's polycoef, whose higher terms must be 0)."""
-    column = {j: c for c, j in enumerate(joint_ids)}
-    out = []
-    for e in range(m.neq):
-        if int(m.eq_type[e]) != int(mujoco.mjtEq.mjEQ_JOINT) or not m.eq_active0[e]:
-            continue
-        follower, leader = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
-        poly = m.eq_data[e, :5]
-        if follower not in column or leader not in column or np.any(poly[2:] != 0.0):
-            raise ConfigError(f"env.asset: joint equality {m.equality(e).name!r} is not a linear coupling of two "
-                              "hand joints (polycoef c0 c1 0 0 0); the in-hand tasks can draw only those")
-        out.append((column[follower], column[leader], float(poly[0]), float(poly[1])))
-    return out
 
 
 def observation_type(value: object, valid: tuple[str, ...]) -> str:
