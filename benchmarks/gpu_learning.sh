@@ -8,9 +8,14 @@
 #             final >= 0.95 x best)
 #   lift_novn the same without value normalisation (ablation: the shipped recipe has it)
 #   lift_asym the same with the asymmetric critic (ablation)
-#   stack     FrankaCubeStack, seeds 1 and 2, asymmetric critic off and on, 900 s (target: >= 0.80 stacked)
+#   stack     FrankaCubeStack, seeds 1 and 2, value normalisation on (it made FrankaCubeLift learn in every seed),
+#             asymmetric critic off and on, 900 s (target: >= 0.80 stacked)
 #   allegro   AllegroHand, seeds 1 and 2, value normalisation off and on, 1500 s (target: consecutive_successes >= 10)
 #   rgb       FrankaCubeLiftRGB and FrankaCubeLiftDepth, seeds 1 and 2 each, 1200 s (target: >= 0.70 from pixels)
+#   shadow    ShadowHand, seeds 1 and 2, and ShadowHandOpenAI_FF, seeds 1 and 2, 1800 s (target: IGE's
+#             consecutive_successes >= 10 within 30 minutes)
+#   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
+#   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
 # A budget over one device call (10 minutes) runs detached and is waited for in the next call:
 #   call 1: setsid nohup bash benchmarks/gpu_learning.sh stack /tmp/l > /tmp/l.log 2>&1 &
 #   call 2: while [ ! -f /tmp/l/done ]; do sleep 10; done; cat /tmp/l/sweeps/*/sweep.md
@@ -27,10 +32,14 @@ case "$name" in
   lift) sweep 300 task=FrankaCubeLift seed=1,2,3,4 ;;
   lift_novn) sweep 300 task=FrankaCubeLift seed=1,2,3,4 train.algorithm.normalize_value=False ;;
   lift_asym) sweep 300 task=FrankaCubeLift seed=1,2,3,4 task.env.asymmetric_observations=True ;;
-  stack) sweep 900 task=FrankaCubeStack seed=1,2 task.env.asymmetric_observations=False,True ;;
+  stack) sweep 900 task=FrankaCubeStack seed=1,2 +train.algorithm.normalize_value=True \
+           task.env.asymmetric_observations=False,True ;;
   allegro) sweep 1500 task=AllegroHand seed=1,2 +train.algorithm.normalize_value=False,True ;;
   rgb) sweep 1200 task=FrankaCubeLiftRGB,FrankaCubeLiftDepth seed=1,2 ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, allegro or rgb"; exit 2 ;;
+  shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=1,2 ;;
+  balance) sweep 120 task=BallBalance seed=1,2,3,4 sweep_metric=timeout_fraction ;;
+  quad) sweep 120 task=Quadcopter seed=1,2,3,4 sweep_metric=timeout_fraction ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, allegro, rgb, shadow, balance or quad"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
 touch "$out/done"
