@@ -160,7 +160,7 @@ class FrankaCabinet(VecTask):
         self.arm.reset(mask, dof_pos)
         closed = torch.zeros_like(self.cabinet.dof_pos)
         # No pose refresh: it would run the kinematics of every world at every step (reset_idx runs each step,
-        # with an empty mask mostly), 13 % of VecTask.step on an H200. A new episode's first observation then
+        # with an empty mask mostly), 13 % of VecTask.step on a GPU. A new episode's first observation then
         # holds the previous episode's grasp-to-handle vector (joint and drawer values are current), as IGE's.
         self.sim.write_state(mask, dof_pos=closed, dof_vel=closed, asset=self.cabinet.name, refresh=False)
         self.actions.masked_fill_(mask.unsqueeze(1), 0.0)

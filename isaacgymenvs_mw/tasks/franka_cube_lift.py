@@ -1,4 +1,4 @@
-"""FrankaCubeLift, FrankaCubeLiftDepth and FrankaCubeLiftRGB (issues 33, 44): the Panda grasps the 5 cm cube and lifts it.
+"""FrankaCubeLift, FrankaCubeLiftDepth and FrankaCubeLiftRGB: the Panda grasps the 5 cm cube and lifts it.
 
 The scene (``cfg/task/FrankaCubeLift.yaml``) is FrankaCubeStack's without cube B: the Panda at the world origin (its
 base frame), the table top 0.1 m below it, and cube A (``env.assets.cubeA``) placed at every reset with its xy

@@ -129,7 +129,7 @@ class FrankaCubeStack(VecTask):
                                   self.dynamics.mass_matrix(), self.dynamics.jacobian(), self.osc_kp,
                                   self.osc_kp_null)
             # A singular pose can make the unchecked inverses NaN: that world gets no arm torque for this step (a
-            # NaN command would reach the learner through the next state; seen once in 1260 H200 iterations).
+            # NaN command would reach the learner through the next state; rare, about once in a thousand iterations).
             torques = torch.nan_to_num(torques, nan=0.0)
             self.sim.ctrl[:, :7] = torch.clamp(torques, -self.torque_limit, self.torque_limit)
             self.sim.ctrl[:, 7] = grip
