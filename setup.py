@@ -1,6 +1,13 @@
 """isaacgymenvs_mw: IsaacGymEnvs-style vectorised RL tasks on MuJoCo Warp."""
 
+import re
+from pathlib import Path
+
 from setuptools import find_packages, setup
+
+# The version lives in isaacgymenvs_mw/_version.py (read as text: setup.py must not import the package).
+VERSION = re.search(r'__version__ = "([^"]+)"',
+                    (Path(__file__).parent / "isaacgymenvs_mw" / "_version.py").read_text()).group(1)
 
 # Pinned where a minor release can change simulator behaviour or the training API:
 # mujoco / mujoco-warp / warp-lang move together (MJWarp 4.0 is built against warp 1.19),
@@ -26,7 +33,7 @@ INSTALL_REQUIRES = [
 
 setup(
     name="isaacgymenvs_mw",
-    version="0.1.0",
+    version=VERSION,
     description="IsaacGymEnvs-style vectorised RL tasks (VecTask + YAML + train.py) on MuJoCo Warp",
     packages=find_packages(include=["isaacgymenvs_mw", "isaacgymenvs_mw.*"]),
     python_requires=">=3.10,<3.13",

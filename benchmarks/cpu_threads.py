@@ -1,4 +1,4 @@
-"""Training throughput on the CPU against torch's thread count, alone and beside one busy process (issue 30).
+"""Training throughput on the CPU against torch's thread count, alone and beside one busy process.
 
     python benchmarks/cpu_threads.py [--tasks Cartpole Anymal] [--threads 1 auto] [--iterations 8]
 

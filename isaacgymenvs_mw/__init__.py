@@ -5,7 +5,9 @@ from __future__ import annotations
 import os
 from typing import Sequence
 
-__version__ = "0.1.0"
+from isaacgymenvs_mw._version import __version__
+
+__all__ = ["__version__", "make"]
 
 
 def make(

@@ -95,7 +95,7 @@ def test_the_task_sums_its_scaled_terms_and_succeeds_on_held_and_lifted():
     t = lambda x: torch.tensor(np.array(x), dtype=torch.float32)
     cube, grasp, opening = t([c[1] for c in cases]), t([c[2] for c in cases]), t([c[3] for c in cases])
     tip_l, tip_r = grasp + t([0.0, 0.04, 0.0]), grasp - t([0.0, 0.04, 0.0])
-    env.terms = cube_lift_terms(cube, grasp, tip_l, tip_r, opening, env.k["liftHeight"])
+    env.terms = cube_lift_terms(cube, grasp, tip_l, tip_r, opening, env.env_numbers["liftHeight"])
     env.compute_reward()
     ref = [reference(*v) for v in zip(cube.double().numpy(), grasp.double().numpy(), tip_l.double().numpy(),
                                       tip_r.double().numpy(), opening.double().numpy())]

@@ -237,7 +237,7 @@ def test_openai_ff_variant_is_ige_setting_with_an_asymmetric_critic():
     out = task.reset()
     assert out["obs"].shape == (2, 42) and out["states"].shape == (2, 211)
     assert task.control_freq_inv == 6 and task.max_episode_length == 160  # 20 Hz, IGE's resetTime 8 s
-    assert task.k["successTolerance"] == 0.4 and task.k["actionsMovingAverage"] == 0.3
+    assert task.env_numbers["successTolerance"] == 0.4 and task.env_numbers["actionsMovingAverage"] == 0.3
     assert task.max_consecutive_successes == 50 and task.force_scale == 1.0
     assert task.rewards.weights[task.rewards.names.index("fall")].item() == -50.0
     force = task.state_layout.columns(["dof_force"], "test")

@@ -19,7 +19,7 @@ from typing import Any
 import torch
 from rsl_rl.runners import OnPolicyRunner
 
-import isaacgymenvs_mw
+from isaacgymenvs_mw._version import __version__
 from isaacgymenvs_mw.learning.runner import package_versions
 
 METADATA_FILE = "metadata.json"  # name of the TorchScript extra file
@@ -34,7 +34,7 @@ def policy_metadata(task) -> dict[str, Any]:
         # give a plain task's actions a meaning on the robot; legged tasks' joint_names say the same in joint terms.
         info.setdefault("actuator_names", list(sim.actuator_names))
         info.setdefault("actuator_joints", list(sim.actuator_joints))  # the joint each drives (None: not a joint)
-    info["versions"] = {"isaacgymenvs_mw": isaacgymenvs_mw.__version__, **package_versions()}
+    info["versions"] = {"isaacgymenvs_mw": __version__, **package_versions()}
     info["files"] = {"onnx": "policy.onnx", "torchscript": "policy.pt", "mujoco_model": "model.mjb"}
     return info
 

@@ -24,8 +24,8 @@ from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_tensors
 from isaacgymenvs_mw.learning.loggers import make_writer
+from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
-from isaacgymenvs_mw.utils.config import check_train_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401  (StopRequested: imported from here too)
 

@@ -80,8 +80,8 @@ def _record_launches(entry_points: Sequence[Callable[[], None]]) -> list[tuple[o
     entry points work on scratch data.
 
     MuJoCo Warp sizes some launches with ``wp.get_suggested_block_size``, which on CUDA compiles the kernel's
-    module then and there, in this thread: on a heightfield (the convex collision kernels) that was about a minute
-    of a cold AnymalTerrain start on an H100 before the parallel load began. During the recording the query
+    module then and there, in this thread: on a heightfield (the convex collision kernels) that is about a minute
+    of a cold AnymalTerrain start on a GPU, spent before the parallel load could begin. During the recording the query
     returns a stand-in size and records the module with the default block size, the variant the real query loads.
     """
     found: dict[tuple[object, int | None], None] = {}
@@ -171,9 +171,9 @@ def time_left(work_done: float, work_left: float, elapsed: float) -> float | Non
     """Seconds until the modules of ``work_left`` are ready, at the pace at which ``work_done`` was (``module_work``
     units, compiled modules only: one read back from the cache takes milliseconds); None while no estimate is sound.
 
-    Counting modules misleads: on an H100, 1 of 42 modules was ready after 16 s and the other 41 within the next 5
-    s (elapsed time per module said 648 s left); on 2 CPU cores, 6 of 33 after 7 s and the rest within 4 s (it said
-    30 s)."""
+    Counting modules misleads, because their compile times differ widely: on a GPU host 1 of 42 modules can be ready
+    after 16 s and the other 41 within the next 5 s (elapsed time per module would say 648 s left); on 2 CPU cores,
+    6 of 33 after 7 s and the rest within 4 s (it would say 30 s)."""
     if work_left <= 0:
         return 0.0
     if work_done <= 0 or work_done < _ESTIMATE_AFTER * (work_done + work_left):

@@ -8,13 +8,23 @@ regularisation): ``body_invweight0`` and ``dof_invweight0``. ``mujoco_warp.set_c
 physics step each time; ``InertiaConstants`` computes the same two fields in batched torch from the per-world
 masses, inertias, CoM offsets and armature at qpos0 (the other outputs of set_const, ``body_subtreemass`` and
 ``actuator_acc0``, are not read by the step).
+
+The randomisation layer (tasks/base/randomization.py) asks for a property by meaning (``"geoms.friction"``,
+``"bodies.mass"``); ``MODEL_PROPERTIES`` says which Model field entries carry it here, with MuJoCo's columns and signs.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import mujoco
 import numpy as np
 import torch
+
+from isaacgymenvs_mw.sim.builder import name_matches
+from isaacgymenvs_mw.sim.simulator import Simulator
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 _OBJECTS = {"bodies": mujoco.mjtObj.mjOBJ_BODY, "geoms": mujoco.mjtObj.mjOBJ_GEOM,
             "joints": mujoco.mjtObj.mjOBJ_JOINT, "actuators": mujoco.mjtObj.mjOBJ_ACTUATOR}
@@ -35,6 +45,104 @@ def model_names(m: mujoco.MjModel, kind: str, for_geoms: bool = False) -> tuple[
         movable = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
         ids = [j for j in ids if int(m.jnt_type[j]) in movable]
     return [mujoco.mj_id2name(m, _OBJECTS[kind], i) or "" for i in ids], ids
+
+
+@dataclass(frozen=True)
+class FieldWrite:
+    """One Model field entry a property is written to: value * sign goes to ``field[..., column]``."""
+
+    field: str
+    column: int | None = None
+    sign: float = 1.0
+
+    def __str__(self) -> str:
+        return self.field if self.column is None else f"{self.field}[{self.column}]"
+
+
+@dataclass(frozen=True)
+class ModelProperty:
+    """A physical property of the model's bodies / geoms / joints / actuators (or of the world: ``elements`` None)."""
+
+    elements: str | None
+    writes: tuple[FieldWrite, ...]
+    torque_speed: bool = False  # a parameter of the drives' torque-speed limit (sim.torque_speed), not a Model field
+
+    @property
+    def changes_inertia(self) -> bool:
+        """Whether writing it makes ``body_invweight0`` / ``dof_invweight0`` stale (``InertiaConstants``)."""
+        return any(w.field in INERTIA_INPUTS for w in self.writes)
+
+
+# The Model fields InertiaConstants reads: writing any of them makes the derived constants stale.
+INERTIA_INPUTS = ("body_mass", "body_ipos", "body_inertia", "dof_armature")
+
+MODEL_PROPERTIES: dict[str, ModelProperty] = {
+    "bodies.mass": ModelProperty("bodies", (FieldWrite("body_mass"),)),
+    "bodies.com": ModelProperty("bodies", (FieldWrite("body_ipos"),)),
+    "bodies.inertia": ModelProperty("bodies", (FieldWrite("body_inertia"),)),
+    # Column 0 is the sliding friction; 1 and 2 are torsional and rolling.
+    "geoms.friction": ModelProperty("geoms", (FieldWrite("geom_friction", 0),)),
+    "joints.damping": ModelProperty("joints", (FieldWrite("dof_damping"),)),
+    "joints.armature": ModelProperty("joints", (FieldWrite("dof_armature"),)),
+    # An actuator's force is gainprm[0] * ctrl + biasprm[0] + biasprm[1] * q + biasprm[2] * qdot; for a position
+    # servo kp = gainprm[0] = -biasprm[1] and kd = -biasprm[2].
+    "actuators.stiffness": ModelProperty("actuators", (FieldWrite("actuator_gainprm", 0),
+                                                       FieldWrite("actuator_biasprm", 1, -1.0))),
+    "actuators.damping": ModelProperty("actuators", (FieldWrite("actuator_biasprm", 2, -1.0),)),
+    "actuators.gain": ModelProperty("actuators", (FieldWrite("actuator_gainprm", 0),)),
+    "actuators.bias": ModelProperty("actuators", (FieldWrite("actuator_biasprm", 0),)),
+    "actuators.saturation_torque": ModelProperty("actuators", (FieldWrite("saturation"),), torque_speed=True),
+    "actuators.torque_limit": ModelProperty("actuators", (FieldWrite("limit"),), torque_speed=True),
+    "actuators.velocity_limit": ModelProperty("actuators", (FieldWrite("speed"),), torque_speed=True),
+    "world.gravity": ModelProperty(None, (FieldWrite("opt.gravity"),)),
+}
+
+
+def per_world_fields(properties: Sequence[ModelProperty]) -> tuple[str, ...]:
+    """Model fields the simulator must batch per world to hold one value of each property per world."""
+    fields = [w.field for p in properties if not p.torque_speed for w in p.writes]
+    if any(p.changes_inertia for p in properties):
+        fields += ["body_invweight0", "dof_invweight0"]
+    return tuple(dict.fromkeys(fields))
+
+
+def element_ids(m: mujoco.MjModel, prop: ModelProperty, selector: str | None, patterns: list[str] | None,
+                key: str, device: torch.device) -> torch.Tensor:
+    """Indices into the property's field of the elements that ``patterns`` select by name (None: all of them).
+
+    ``selector`` is the kind the patterns name (None: the property's own); geoms may also be selected by their
+    body's name. Joints select their dofs. A property of the world has the one index 0.
+    """
+    if prop.elements is None:
+        return torch.zeros(1, dtype=torch.long, device=device)
+    kind = selector or prop.elements
+    names, ids = model_names(m, kind, for_geoms=prop.elements == "geoms")
+    if patterns is None:
+        chosen = list(range(len(names)))
+    else:
+        chosen = []
+        for pattern in patterns:
+            chosen += [i for i in name_matches(pattern, names, f"{key}.{kind}", kind) if i not in chosen]
+    element = [ids[i] for i in chosen]
+    if kind == "bodies" and prop.elements == "geoms":
+        element = [g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in element]
+    elif kind == "joints":
+        element = [int(m.jnt_dofadr[j]) for j in element]
+    return torch.tensor(sorted(set(element)), dtype=torch.long, device=device)
+
+
+def write_view(sim: Simulator, write: FieldWrite, torque_speed: bool, key: str) -> torch.Tensor:
+    """The per-world view (num_worlds, n[, 3]) that ``write`` goes to; gravity is one element of three axes."""
+    if torque_speed:
+        if sim.torque_speed is None:
+            raise ConfigError(f"{key}: the drives have no torque-speed limit; set env.control.torqueSpeed")
+        return getattr(sim.torque_speed, write.field)
+    full = sim.model_field(write.field)
+    if full.shape[0] != sim.num_worlds:
+        raise RuntimeError(f"{key}: Model field {write.field} is not batched per world")
+    if write.field == "opt.gravity":
+        return full.unsqueeze(1)
+    return full if write.column is None else full[..., write.column]
 
 
 class InertiaConstants:
@@ -114,3 +222,11 @@ class InertiaConstants:
                       torch.where((rot < tiny) & (trans > tiny), trans, rot))
         body_invweight0 = torch.stack((trans, rot), dim=-1) * self.moving.view(1, -1, 1)
         return body_invweight0.to(torch.float32), dof_invweight0.to(torch.float32)
+
+    def update(self, sim: Simulator, mask: torch.Tensor) -> None:
+        """Recompute the two constants of the worlds in ``mask`` from their current per-world fields."""
+        fields = [sim.model_field(n) for n in INERTIA_INPUTS]
+        body, dof = self.compute(*(f.expand(sim.num_worlds, *f.shape[1:]) for f in fields))
+        for name, value in (("body_invweight0", body), ("dof_invweight0", dof)):
+            view = sim.model_field(name)
+            view.copy_(torch.where(mask.view((-1,) + (1,) * (value.dim() - 1)), value, view))

@@ -75,7 +75,7 @@ class Simulator:
         deterministic: MuJoCo Warp's ``opt.deterministic`` (all ``DeterminismType`` bits): floating-point atomic
             sums in a fixed order. With mujoco-warp 4.0.0 that is not enough for identical GPU runs (its contact and
             constraint sorts are not implemented; docs/config.md, "Deterministic mode"). Costs speed on GPU (12x for
-            Go1 on an H100); the CPU device runs kernels serially and reproduces runs either way.
+            Go1); the CPU device runs kernels serially and reproduces runs either way.
         cameras: the model's cameras to render (``env.cameras``, already added to ``mj_model`` by ``build_model``);
             their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
     """

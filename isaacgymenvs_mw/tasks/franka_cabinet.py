@@ -46,7 +46,7 @@ class FrankaCabinet(VecTask):
                    if k not in env]
         if missing:
             raise ConfigError(f"FrankaCabinet: the task YAML's env section lacks {missing}")
-        self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
+        self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self.arm = FrankaArm(self.sim, "FrankaCabinet")
@@ -54,8 +54,8 @@ class FrankaCabinet(VecTask):
         self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         # Per step, a target moves by at most actionScale x control dt (rad for the arm, m for the gripper).
         speed = torch.ones(self.arm.num_targets, device=self.device)
-        speed[-1] = self.k["fingerSpeedScale"]
-        self.target_step = speed * self.k["actionScale"] * self.control_dt
+        speed[-1] = self.env_numbers["fingerSpeedScale"]
+        self.target_step = speed * self.env_numbers["actionScale"] * self.control_dt
         self.actions = torch.zeros((self.num_envs, self.num_actions), device=self.device)
         self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
                                    self.device, key="env")
@@ -103,12 +103,13 @@ class FrankaCabinet(VecTask):
 
     def check_success(self) -> torch.Tensor:
         # open past openDistance (IGE's end condition): the episode ends, bootstrapped (see VecTask.check_success)
-        return self.drawer_pos() > self.k["openDistance"]
+        return self.drawer_pos() > self.env_numbers["openDistance"]
 
     def compute_reward(self) -> None:
         reward = self.rewards.compute(self.nonfinite_buf)
         past = fingers_past_handle(self.left_finger, self.right_finger, self.handle_pos, self.opening_axis)
-        self.rew_buf[:] = torch.where(past, self.k["pastHandleReward"], reward) * self.k["rewardScale"]
+        self.rew_buf[:] = (torch.where(past, self.env_numbers["pastHandleReward"], reward)
+                           * self.env_numbers["rewardScale"])
 
     # Reward terms: each returns its per-step value; its YAML scale multiplies it (REWARD_SCALE_KEYS).
     def _reward_handle_distance(self) -> torch.Tensor:
@@ -146,7 +147,7 @@ class FrankaCabinet(VecTask):
 
         d = self.drawer_dof
         return [ObsTerm("dof_pos", 9, compute=self.arm.scaled_dof_pos),                # 7 arm + 2 fingers, [-1, 1]
-                ObsTerm("dof_vel", 9, scale=self.k["dofVelocityScale"],
+                ObsTerm("dof_vel", 9, scale=self.env_numbers["dofVelocityScale"],
                         compute=lambda: self.sim.dof_vel),                              # rad/s, m/s
                 ObsTerm("to_handle", 3, compute=to_handle),                             # m, world frame
                 ObsTerm("drawer_pos", 1, compute=lambda: self.cabinet.dof_pos[:, d:d + 1]),  # m, 0 closed
@@ -154,12 +155,12 @@ class FrankaCabinet(VecTask):
 
     # ------------------------------------------------------------------ reset
     def reset_idx(self, mask: torch.Tensor) -> None:
-        noise = self.k["startDofNoise"] * (torch.rand((self.num_envs, 9), device=self.device) - 0.5)
+        noise = self.env_numbers["startDofNoise"] * (torch.rand((self.num_envs, 9), device=self.device) - 0.5)
         dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
         self.arm.reset(mask, dof_pos)
         closed = torch.zeros_like(self.cabinet.dof_pos)
         # No pose refresh: it would run the kinematics of every world at every step (reset_idx runs each step,
-        # with an empty mask mostly), 13 % of VecTask.step on an H200. A new episode's first observation then
+        # with an empty mask mostly), 13 % of VecTask.step on a GPU. A new episode's first observation then
         # holds the previous episode's grasp-to-handle vector (joint and drawer values are current), as IGE's.
         self.sim.write_state(mask, dof_pos=closed, dof_vel=closed, asset=self.cabinet.name, refresh=False)
         self.actions.masked_fill_(mask.unsqueeze(1), 0.0)

@@ -1,4 +1,4 @@
-"""FrankaCubeLift, FrankaCubeLiftDepth and FrankaCubeLiftRGB (issues 33, 44): the Panda grasps the 5 cm cube and lifts it.
+"""FrankaCubeLift, FrankaCubeLiftDepth and FrankaCubeLiftRGB: the Panda grasps the 5 cm cube and lifts it.
 
 The scene (``cfg/task/FrankaCubeLift.yaml``) is FrankaCubeStack's without cube B: the Panda at the world origin (its
 base frame), the table top 0.1 m below it, and cube A (``env.assets.cubeA``) placed at every reset with its xy
@@ -56,8 +56,8 @@ class FrankaCubeLift(VecTask):
         if env.get("controlType", "joint_pos") != "joint_pos":
             raise ConfigError(f"env.controlType={env.get('controlType')!r} is invalid: {name} supports only "
                               "'joint_pos'")
-        self.k = {key: real_number(env[key], f"env.{key}", 0.0, low_open=positive)
-                  for key, positive in _NUMBER_KEYS.items()}
+        self.env_numbers = {key: real_number(env[key], f"env.{key}", 0.0, low_open=must_be_positive)
+                            for key, must_be_positive in _NUMBER_KEYS.items()}
         # True: the critic also reads what the simulator knows (franka_cubes.privileged_terms)
         self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
@@ -65,7 +65,7 @@ class FrankaCubeLift(VecTask):
         self.arm = FrankaArm(self.sim, name)
         self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         self.cube = self.sim.asset("cubeA")
-        self.arm_step = self.k["actionScale"] * self.control_dt  # rad per step at action 1
+        self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1
         self.table_centre = torch.tensor([*cubes.TABLE_CENTRE_XY], device=self.device)
         scales = {t: real_number(env[k], f"env.{k}") for t, k in REWARD_SCALE_KEYS.items()}
         self.rewards = RewardTerms(self, scales, self.num_envs, self.device, key="env")
@@ -81,7 +81,7 @@ class FrankaCubeLift(VecTask):
         """The quantities the reward terms and the success test share, once per step."""
         grasp = self.arm.grasp_pos()
         self.terms = cube_lift_terms(self.cube.root_pos, grasp, *cubes.fingertips(self.arm), self.sim.dof_pos[:, 7],
-                                     self.k["liftHeight"])
+                                     self.env_numbers["liftHeight"])
 
     def check_success(self) -> torch.Tensor:
         # held at or above the lift height: the episode ends, bootstrapped (see VecTask.check_success)
@@ -138,8 +138,9 @@ class FrankaCubeLift(VecTask):
     def reset_idx(self, mask: torch.Tensor) -> None:
         n = self.num_envs
         self.sim.reset_worlds(mask)
-        self.arm.reset(mask, cubes.noisy_start_pose(self.start_dof_pos, self.k["frankaDofNoise"], self.arm, n))
-        pos, quat = sample_cube(n, self.table_centre, self.k["startPositionNoise"], self.k["startRotationNoise"])
+        numbers = self.env_numbers
+        self.arm.reset(mask, cubes.noisy_start_pose(self.start_dof_pos, numbers["frankaDofNoise"], self.arm, n))
+        pos, quat = sample_cube(n, self.table_centre, numbers["startPositionNoise"], numbers["startRotationNoise"])
         zero = torch.zeros_like(pos)
         # The observation reads the grasp site and the cube: poses recomputed once, after both writes.
         self.sim.write_state(mask, root_pos=pos, root_quat=quat, root_lin_vel=zero, root_ang_vel=zero,

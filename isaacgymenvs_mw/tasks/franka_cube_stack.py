@@ -85,7 +85,7 @@ class FrankaCubeStack(VecTask):
             # The MJCF's arm servos become torque motors (same names and ctrl columns, force capped at 87 / 12 N m).
             control = env.setdefault("control", {})
             control["driveMode"] = {**dict(control.get("driveMode") or {}), "joint[1-7]": "effort"}
-        self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
+        self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
         # True: the critic also reads what the simulator knows (franka_cubes.privileged_terms)
         self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
@@ -95,7 +95,7 @@ class FrankaCubeStack(VecTask):
         self.cube_a, self.cube_b = self.sim.asset("cubeA"), self.sim.asset("cubeB")
         m = self.sim.mj_model
         self.torque_limit = torch.tensor(m.actuator_forcerange[:7, 1], dtype=torch.float32, device=self.device)
-        self.arm_step = self.k["actionScale"] * self.control_dt  # rad per step at action 1 (joint_pos)
+        self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1 (joint_pos)
         self.table_centre = torch.tensor([*TABLE_CENTRE_XY], device=self.device)
         scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
         scales.update({t: float(env.get(k, 0.0)) for t, k in SHAPING_SCALE_KEYS.items()})
@@ -129,7 +129,7 @@ class FrankaCubeStack(VecTask):
                                   self.dynamics.mass_matrix(), self.dynamics.jacobian(), self.osc_kp,
                                   self.osc_kp_null)
             # A singular pose can make the unchecked inverses NaN: that world gets no arm torque for this step (a
-            # NaN command would reach the learner through the next state; seen once in 1260 H200 iterations).
+            # NaN command would reach the learner through the next state; rare, about once in a thousand iterations).
             torques = torch.nan_to_num(torques, nan=0.0)
             self.sim.ctrl[:, :7] = torch.clamp(torques, -self.torque_limit, self.torque_limit)
             self.sim.ctrl[:, 7] = grip
@@ -198,13 +198,13 @@ class FrankaCubeStack(VecTask):
     # ------------------------------------------------------------------ reset
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
-        dof_pos = noisy_start_pose(self.start_dof_pos, self.k["frankaDofNoise"], self.arm, n)
+        dof_pos = noisy_start_pose(self.start_dof_pos, self.env_numbers["frankaDofNoise"], self.arm, n)
         self.sim.reset_worlds(mask)
         self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
         if self.control_type in TORQUE_CONTROL:  # the arm's ctrl columns are torques: none in a new episode
             self.sim.ctrl[:, :7].masked_fill_(mask.unsqueeze(1), 0.0)
-        pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.k["startPositionNoise"],
-                                                    self.k["startRotationNoise"], dev)
+        pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.env_numbers["startPositionNoise"],
+                                                    self.env_numbers["startRotationNoise"], dev)
         zero = torch.zeros_like(pos_a)
         self.sim.write_state(mask, root_pos=pos_a, root_quat=quat_a, root_lin_vel=zero, root_ang_vel=zero,
                              asset="cubeA", refresh=False)

@@ -15,6 +15,6 @@ class Humanoid(LocomotionTask):
 
     def _reward_joints_at_limit(self) -> torch.Tensor:
         # penalises joints pressed to their limits, growing linearly from the threshold and weighted by motor strength
-        thr = self.k["jointsAtLimitThreshold"]
+        thr = self.env_numbers["jointsAtLimitThreshold"]
         excess = (torch.abs(self.dof_pos_scaled()) - thr).clamp(min=0.0) / (1.0 - thr)
-        return -self.k["jointsAtLimitCost"] * torch.sum(excess * self.dof_effort_ratio, dim=-1)
+        return -self.env_numbers["jointsAtLimitCost"] * torch.sum(excess * self.dof_effort_ratio, dim=-1)

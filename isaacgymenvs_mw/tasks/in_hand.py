@@ -74,10 +74,10 @@ class InHandTask(VecTask):
         missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) if k not in env]
         if missing:
             raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
-        self.k = {key: float(env[key]) for key in _NUMBER_KEYS}
+        self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
         self.observation_type = observation_type(env.get("observationType", "full_state"), self.observation_types)
         self.asymmetric = bool(env.get("asymmetric_observations", False))
-        check_settings(self.k)
+        check_settings(self.env_numbers)
         self.max_consecutive_successes = whole_number(env.get("maxConsecutiveSuccesses", 0),
                                                       "env.maxConsecutiveSuccesses", 0)
         self.relative_control = bool(env.get("useRelativeControl", False))
@@ -104,7 +104,7 @@ class InHandTask(VecTask):
         # Relative control: IGE moves a joint's target by dofSpeedScale x its sim dt x the action; a servo on the
         # tendon of two joints held equal (the Shadow hand's J1 + J2) moves twice as far, that much for each joint.
         per_joint = torch.tensor(transmission.sum(axis=1), dtype=torch.float32, device=dev)
-        self.relative_step = self.k["dofSpeedScale"] * IGE_SIM_DT * per_joint
+        self.relative_step = self.env_numbers["dofSpeedScale"] * IGE_SIM_DT * per_joint
 
         free = self.cube.layout.free_qpos
         self.object_start_pos = torch.tensor(m.qpos0[free:free + 3], dtype=torch.float32, device=dev)  # env.assets
@@ -143,7 +143,7 @@ class InHandTask(VecTask):
             targets = self.prev_targets + self.relative_step * actions
         else:
             targets = self.target_lower + 0.5 * (actions + 1.0) * (self.target_upper - self.target_lower)
-            alpha = self.k["actionsMovingAverage"]
+            alpha = self.env_numbers["actionsMovingAverage"]
             targets = alpha * targets + (1.0 - alpha) * self.prev_targets
         targets = torch.clamp(targets, self.target_lower, self.target_upper)
         self.prev_targets.copy_(targets)
@@ -184,7 +184,7 @@ class InHandTask(VecTask):
     def refresh_state(self) -> None:
         """The quantities the reward terms, the end conditions and the goal reset share, once per step."""
         self.terms = hand_terms(self.cube.root_pos, self.cube.root_quat, self.goal_pos, self.goal_quat,
-                                self.k["successTolerance"], self.k["fallDistance"])
+                                self.env_numbers["successTolerance"], self.env_numbers["fallDistance"])
         reached = self.terms["reached"]
         self.successes += reached.float()
         if self.max_consecutive_successes > 0:
@@ -206,7 +206,7 @@ class InHandTask(VecTask):
         return int(self.max_episode_length) * (self.max_consecutive_successes + 1)
 
     def compute_reward(self) -> None:
-        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf) * self.k["rewardScale"]
+        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf) * self.env_numbers["rewardScale"]
 
     # Reward terms (IsaacGymEnvs' compute_hand_reward, one term per summand).
     def _reward_dist(self) -> torch.Tensor:
@@ -215,7 +215,7 @@ class InHandTask(VecTask):
 
     def _reward_rot(self) -> torch.Tensor:
         # 1 / (rotation distance + rotEps): up to 1 / rotEps at the goal orientation
-        return 1.0 / (self.terms["rot_dist"] + self.k["rotEps"])
+        return 1.0 / (self.terms["rot_dist"] + self.env_numbers["rotEps"])
 
     def _reward_action_penalty(self) -> torch.Tensor:
         # sum of the squared actions
@@ -298,7 +298,7 @@ class InHandTask(VecTask):
         # into a running value with weight averFactor (unchanged in a step without resets).
         count = mask.sum()
         mean = ended.sum() / count.clamp(min=1)
-        aver = self.k["averFactor"]
+        aver = self.env_numbers["averFactor"]
         self.consecutive_successes.copy_(torch.where(count > 0, aver * mean + (1.0 - aver) * self.consecutive_successes,
                                                      self.consecutive_successes))
         self.extras["running_metrics"] = {"consecutive_successes": self.consecutive_successes}
@@ -309,11 +309,13 @@ class InHandTask(VecTask):
 
         # The hand: IGE's draw, default pose 0 + resetDofPosRandomInterval x a point of the joint range.
         u = torch.rand((n, self.num_dof), device=dev)
-        dof_pos = self.k["resetDofPosRandomInterval"] * (self.dof_lower + u * (self.dof_upper - self.dof_lower))
+        span = self.dof_upper - self.dof_lower
+        dof_pos = self.env_numbers["resetDofPosRandomInterval"] * (self.dof_lower + u * span)
         dof_pos = torch.clamp(dof_pos, self.dof_lower, self.dof_upper)
         for follower, leader, offset, ratio in self.couplings:
             dof_pos[:, follower] = offset + ratio * dof_pos[:, leader]
-        dof_vel = self.k["resetDofVelRandomInterval"] * (2.0 * torch.rand((n, self.num_dof), device=dev) - 1.0)
+        dof_vel = (self.env_numbers["resetDofVelRandomInterval"]
+                   * (2.0 * torch.rand((n, self.num_dof), device=dev) - 1.0))
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=dof_vel, refresh=False)
         rows = mask.unsqueeze(1)
@@ -326,7 +328,7 @@ class InHandTask(VecTask):
             self._draw_push_prob(mask)
 
         # The cube: its start position with uniform noise, a random orientation (IGE's draw), at rest.
-        noise = self.k["resetPositionNoise"] * (2.0 * torch.rand((n, 3), device=dev) - 1.0)
+        noise = self.env_numbers["resetPositionNoise"] * (2.0 * torch.rand((n, 3), device=dev) - 1.0)
         zero = torch.zeros((n, 3), device=dev)
         # No pose refresh: every observed quantity is read from qpos, the goal marker is a mocap body, and the next
         # physics step derives the poses (a Warp launch here would split the compiled step).

@@ -38,8 +38,8 @@ from typing import Any, Iterator
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT)
 WATCH_INTERVAL_S = 0.05  # how long a replaced C-level handler can stay in place: 20 reads of 2 signals per second
-# A stop still under way this long after its signal is stuck (on an H200 a compile waited forever for Inductor
-# workers the signal had killed): the process prints every thread's stack and ends with the signal's status, so that
+# A stop still under way this long after its signal is stuck (e.g. a compile waiting forever for Inductor workers
+# the signal killed): the process prints every thread's stack and ends with the signal's status, so that
 # a scheduler's job ends with a diagnosis instead of hanging until its SIGKILL. Saving a checkpoint and the summary
 # takes seconds.
 STOP_GRACE_S = 120.0

@@ -78,7 +78,8 @@ def require_int(section: dict, key: str, minimum: int, default: int | None = Non
     return whole_number(section[key], f"env.{key}", minimum)
 
 
-def positive(section: dict, key: str, default: float) -> float:
+def positive_env_number(section: dict, key: str, default: float) -> float:
+    """``env.<key>`` of the ``env`` section as a float, ``default`` when absent; an error unless it is > 0."""
     value = section.get(key, default)
     try:
         value = float(value)

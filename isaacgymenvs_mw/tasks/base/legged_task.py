@@ -27,11 +27,11 @@ from isaacgymenvs_mw.sim import (
     generate_terrain,
     ground_geoms,
     heightfield_grid,
+    match_body_names,
     match_joint_numbers,
     match_joint_values,
     parse_terrain_config,
 )
-from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
@@ -63,7 +63,7 @@ class LeggedTask(VecTask):
         bodies = request.body_names()  # from the request's parsed asset: no second parse
         sensed = list(request.contact_bodies)  # env.asset.contactBodies, then the bodies the rewards read
         for key in ("footBodies", "terminateContactBodies", "penalizeContactBodies"):
-            for body in _select(asset.get(key, []), bodies, f"env.asset.{key}"):
+            for body in match_body_names(asset.get(key, []), bodies, f"env.asset.{key}"):
                 if body not in sensed:
                     sensed.append(body)
         request.contact_bodies = sensed
@@ -172,10 +172,10 @@ class LeggedTask(VecTask):
 
     def _init_bodies(self, asset: dict) -> None:
         names = self.sim.body_names
-        self.feet = _select(asset["footBodies"], names, "env.asset.footBodies")
-        self.terminate_bodies = _select(asset.get("terminateContactBodies", []), names,
+        self.feet = match_body_names(asset["footBodies"], names, "env.asset.footBodies")
+        self.terminate_bodies = match_body_names(asset.get("terminateContactBodies", []), names,
                                         "env.asset.terminateContactBodies")
-        self.penalize_bodies = _select(asset.get("penalizeContactBodies", []), names,
+        self.penalize_bodies = match_body_names(asset.get("penalizeContactBodies", []), names,
                                        "env.asset.penalizeContactBodies")
         self.base_body = self.sim.body_id(asset.get("baseBody", names[1]))
         self.ground_geom = ground_geoms(self.sim.mj_model)[0]  # the parts of a terrain share one friction

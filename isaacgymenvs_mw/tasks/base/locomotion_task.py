@@ -54,7 +54,7 @@ class LocomotionTask(VecTask):
         missing = [k for k in _SCALAR_KEYS + ("target", "footContactSensors") if k not in env]
         if missing:
             raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
-        self.k = {key: float(env[key]) for key in _SCALAR_KEYS}
+        self.env_numbers = {key: float(env[key]) for key in _SCALAR_KEYS}
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self._init_joints()
@@ -142,11 +142,11 @@ class LocomotionTask(VecTask):
 
     # ------------------------------------------------------------ observation
     def observation_terms(self) -> list[ObsTerm]:
-        k, n, sim = self.k, self.num_actions, self.sim
+        numbers, n, sim = self.env_numbers, self.num_actions, self.sim
         terms = [
             ObsTerm("torso_height", 1, compute=lambda: sim.root_pos[:, 2:3]),                         # m
             ObsTerm("lin_vel", 3, compute=lambda: self.vel_loc),                                      # torso frame, m/s
-            ObsTerm("ang_vel", 3, k["angularVelocityScale"], compute=lambda: self.angvel_loc),        # rad/s
+            ObsTerm("ang_vel", 3, numbers["angularVelocityScale"], compute=lambda: self.angvel_loc),        # rad/s
             ObsTerm("yaw", 1, compute=lambda: self.yaw.unsqueeze(1)),                                 # rad, (-π, π]
             ObsTerm("roll", 1, compute=lambda: self.roll.unsqueeze(1)),                               # rad, (-π, π]
             # rad: heading error in the ground plane
@@ -154,15 +154,15 @@ class LocomotionTask(VecTask):
             ObsTerm("up_proj", 1, compute=lambda: self.up_proj.unsqueeze(1)),            # torso z axis · world up
             ObsTerm("heading_proj", 1, compute=lambda: self.heading_proj.unsqueeze(1)),  # torso x axis · to target
             ObsTerm("dof_pos_scaled", n, compute=self.dof_pos_scaled),                   # limits -> ±1
-            ObsTerm("dof_vel", n, k["dofVelocityScale"], compute=lambda: sim.dof_vel),   # rad/s
+            ObsTerm("dof_vel", n, numbers["dofVelocityScale"], compute=lambda: sim.dof_vel),   # rad/s
         ]
         if self.observe_dof_forces:
             # Actuator torque per joint (N m); a reset keeps the previous step's forces until the next physics
             # step: show none instead.
-            terms.append(ObsTerm("dof_force", n, k["contactForceScale"],
+            terms.append(ObsTerm("dof_force", n, numbers["contactForceScale"],
                                  compute=lambda: sim.qfrc_actuator[:, 6:] * (self.progress_buf > 0).unsqueeze(1)))
         terms += [
-            ObsTerm("foot_forces", self.FOOT_SENSOR_DIM * self.num_feet, k["contactForceScale"],  # N, N m
+            ObsTerm("foot_forces", self.FOOT_SENSOR_DIM * self.num_feet, numbers["contactForceScale"],  # N, N m
                     compute=lambda: sim.sensordata[:, self._foot_columns]),
             ObsTerm("actions", n, compute=lambda: self.actions),                                  # last policy output
         ]
@@ -196,7 +196,7 @@ class LocomotionTask(VecTask):
     def pre_physics_step(self, actions: torch.Tensor) -> None:
         self.actions[:] = actions
         # The motors' gear turns a command into a torque; MuJoCo clamps the command to the actuator's ctrlrange.
-        self.sim.ctrl[:] = actions * self.k["powerScale"]
+        self.sim.ctrl[:] = actions * self.env_numbers["powerScale"]
 
     def refresh_state(self) -> None:
         self._refresh_torso_state()
@@ -217,18 +217,18 @@ class LocomotionTask(VecTask):
         return drop / self.control_dt
 
     def check_termination(self) -> torch.Tensor:
-        return self.sim.root_pos[:, 2] < self.k["terminationHeight"]
+        return self.sim.root_pos[:, 2] < self.env_numbers["terminationHeight"]
 
     def compute_reward(self) -> None:
         # A fall replaces the step's terms by the death cost; the episode sums log what was earned before it. A
         # blown-up world earns nothing (its body states are NaN until the next physics step).
         earned = self.rewards.compute(self.terminate_buf)
-        total = torch.where(self.terminate_buf, torch.full_like(self.rew_buf, self.k["deathCost"]), earned)
-        self.rew_buf[:] = total * self.k["rewardScale"]
+        total = torch.where(self.terminate_buf, torch.full_like(self.rew_buf, self.env_numbers["deathCost"]), earned)
+        self.rew_buf[:] = total * self.env_numbers["rewardScale"]
 
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, nd, dev = self.num_envs, self.sim.num_dof, self.device
-        noise_pos, noise_vel = self.k["resetDofPosNoise"], self.k["resetDofVelNoise"]
+        noise_pos, noise_vel = self.env_numbers["resetDofPosNoise"], self.env_numbers["resetDofVelNoise"]
         dof_pos = self.initial_dof_pos + noise_pos * (2.0 * torch.rand(n, nd, device=dev) - 1.0)
         dof_pos = torch.clamp(dof_pos, self.dof_lower, self.dof_upper)
         dof_vel = noise_vel * (2.0 * torch.rand(n, nd, device=dev) - 1.0)
@@ -249,30 +249,31 @@ class LocomotionTask(VecTask):
 
     def _reward_alive(self) -> torch.Tensor:
         # rewards every step the torso stays above the termination height
-        return torch.full_like(self.progress_speed, self.k["aliveReward"])
+        return torch.full_like(self.progress_speed, self.env_numbers["aliveReward"])
 
     def _reward_upright(self) -> torch.Tensor:
         # rewards an upright torso: upWeight while its up axis is within acos(upThreshold) of vertical
-        return (self.up_proj > self.k["upThreshold"]).float() * self.k["upWeight"]
+        return (self.up_proj > self.env_numbers["upThreshold"]).float() * self.env_numbers["upWeight"]
 
     def _reward_heading(self) -> torch.Tensor:
         # rewards facing the target: headingWeight above headingThreshold, proportionally less below it
-        w, thr = self.k["headingWeight"], self.k["headingThreshold"]
+        w, thr = self.env_numbers["headingWeight"], self.env_numbers["headingThreshold"]
         return torch.where(self.heading_proj > thr, torch.full_like(self.heading_proj, w), w * self.heading_proj / thr)
 
     def _reward_action_cost(self) -> torch.Tensor:
         # penalises large commands: actionsCost × Σ a²
-        return -self.k["actionsCost"] * torch.sum(self.actions ** 2, dim=-1)
+        return -self.env_numbers["actionsCost"] * torch.sum(self.actions ** 2, dim=-1)
 
     def _reward_energy_cost(self) -> torch.Tensor:
         # penalises mechanical power: energyCost × Σ |a × scaled joint velocity| × motor strength share
-        vel = self.sim.dof_vel[:, self.actuated_dof] * self.k["dofVelocityScale"]
-        return -self.k["energyCost"] * torch.sum(torch.abs(self.actions * vel) * self.motor_effort_ratio, dim=-1)
+        vel = self.sim.dof_vel[:, self.actuated_dof] * self.env_numbers["dofVelocityScale"]
+        power = torch.abs(self.actions * vel) * self.motor_effort_ratio
+        return -self.env_numbers["energyCost"] * torch.sum(power, dim=-1)
 
     def _reward_joints_at_limit(self) -> torch.Tensor:
         # penalises joints pressed to their limits: jointsAtLimitCost per joint with |scaled position| > threshold
-        at_limit = torch.abs(self.dof_pos_scaled()) > self.k["jointsAtLimitThreshold"]
-        return -self.k["jointsAtLimitCost"] * torch.sum(at_limit.float(), dim=-1)
+        at_limit = torch.abs(self.dof_pos_scaled()) > self.env_numbers["jointsAtLimitThreshold"]
+        return -self.env_numbers["jointsAtLimitCost"] * torch.sum(at_limit.float(), dim=-1)
 
 
 def _quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

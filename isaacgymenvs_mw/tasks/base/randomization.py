@@ -21,7 +21,14 @@ from typing import Any
 
 import torch
 
-from isaacgymenvs_mw.sim import InertiaConstants, Simulator, ground_geoms, model_names, name_matches
+from isaacgymenvs_mw.sim import InertiaConstants, Simulator, ground_geoms
+from isaacgymenvs_mw.sim.randomization import (
+    MODEL_PROPERTIES,
+    ModelProperty,
+    element_ids,
+    per_world_fields,
+    write_view,
+)
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -37,53 +44,49 @@ POSITIVE_FLOOR = 1e-3
 
 
 @dataclass(frozen=True)
-class Target:
-    """One Model field (or torque-speed parameter) entry a quantity writes: value * sign goes to field[..., column]."""
-
-    field: str
-    column: int | None = None
-    sign: float = 1.0
-
-
-@dataclass(frozen=True)
 class Quantity:
-    """What an ``actor_params`` / ``sim_params`` key randomises."""
+    """What an ``actor_params`` / ``sim_params`` key randomises: a model property (sim/randomization.py) and how."""
 
-    selects: str | None              # "bodies", "geoms", "joints", "actuators" or None (one per world)
-    targets: tuple[Target, ...]
+    prop: ModelProperty
     axes: int = 0                    # 3: one draw per axis (x, y, z); 0: one per selected element
     broadcast: int = 0               # 3: one draw per element applied to its three columns (inertia)
     minimum: float | None = None     # None: any value; 0: >= 0; POSITIVE_FLOOR: > 0
-    limiter: bool = False            # a torque-speed parameter (env.control.torqueSpeed), not a Model field
+
+    @property
+    def selects(self) -> str | None:
+        """The kind of element it is selected among: bodies, geoms, joints, actuators, or None (one per world)."""
+        return self.prop.elements
+
+
+def _quantity(prop: str, **how: Any) -> Quantity:
+    return Quantity(MODEL_PROPERTIES[prop], **how)
 
 
 QUANTITIES: dict[str, dict[str, Quantity]] = {
     "rigid_body_properties": {
-        "mass": Quantity("bodies", (Target("body_mass"),), minimum=POSITIVE_FLOOR),
-        "com": Quantity("bodies", (Target("body_ipos"),), axes=3),
-        "inertia": Quantity("bodies", (Target("body_inertia"),), broadcast=3, minimum=POSITIVE_FLOOR),
+        "mass": _quantity("bodies.mass", minimum=POSITIVE_FLOOR),
+        "com": _quantity("bodies.com", axes=3),
+        "inertia": _quantity("bodies.inertia", broadcast=3, minimum=POSITIVE_FLOOR),
     },
     "rigid_shape_properties": {
-        "friction": Quantity("geoms", (Target("geom_friction", 0),), minimum=POSITIVE_FLOOR),
+        "friction": _quantity("geoms.friction", minimum=POSITIVE_FLOOR),
     },
     "dof_properties": {
-        "damping": Quantity("joints", (Target("dof_damping"),), minimum=0.0),
-        "armature": Quantity("joints", (Target("dof_armature"),), minimum=0.0),
+        "damping": _quantity("joints.damping", minimum=0.0),
+        "armature": _quantity("joints.armature", minimum=0.0),
     },
     "actuator_properties": {
-        "stiffness": Quantity("actuators", (Target("actuator_gainprm", 0), Target("actuator_biasprm", 1, -1.0)),
-                              minimum=0.0),
-        "damping": Quantity("actuators", (Target("actuator_biasprm", 2, -1.0),), minimum=0.0),
-        "gain": Quantity("actuators", (Target("actuator_gainprm", 0),)),
-        "bias": Quantity("actuators", (Target("actuator_biasprm", 0),)),
-        "saturation_torque": Quantity("actuators", (Target("saturation"),), minimum=0.0, limiter=True),
-        "torque_limit": Quantity("actuators", (Target("limit"),), minimum=0.0, limiter=True),
-        "velocity_limit": Quantity("actuators", (Target("speed"),), minimum=POSITIVE_FLOOR, limiter=True),
+        "stiffness": _quantity("actuators.stiffness", minimum=0.0),
+        "damping": _quantity("actuators.damping", minimum=0.0),
+        "gain": _quantity("actuators.gain"),
+        "bias": _quantity("actuators.bias"),
+        "saturation_torque": _quantity("actuators.saturation_torque", minimum=0.0),
+        "torque_limit": _quantity("actuators.torque_limit", minimum=0.0),
+        "velocity_limit": _quantity("actuators.velocity_limit", minimum=POSITIVE_FLOOR),
     },
 }
-SIM_QUANTITIES = {"gravity": Quantity(None, (Target("opt.gravity"),), axes=3)}
+SIM_QUANTITIES = {"gravity": _quantity("world.gravity", axes=3)}
 SELECTORS = ("bodies", "geoms", "joints", "actuators")
-MASS_FIELDS = ("body_mass", "body_ipos", "body_inertia", "dof_armature")
 
 
 @dataclass
@@ -111,7 +114,7 @@ class Param:
     spec: Spec
     quantity: Quantity
     index: torch.Tensor                           # selected element ids (bodies, geoms, dofs, actuators)
-    nominal: torch.Tensor                         # (1, k[, 3]) nominal values of the first target
+    nominal: torch.Tensor                         # (1, k[, 3]) nominal values of the first field written
     views: list[tuple[torch.Tensor, float]] = field(default_factory=list)  # (field view (W, ...), sign)
     # Column of the draw each selected element takes (None: one draw each); a terrain's ground parts share one.
     draw_of: torch.Tensor | None = None
@@ -283,12 +286,7 @@ class Randomizer:
     # ------------------------------------------------------------------ binding
     def per_world_fields(self) -> tuple[str, ...]:
         """Model fields the simulator must batch per world for the configured quantities."""
-        fields: list[str] = []
-        for _, quantity, _, _ in self.entries:
-            fields += [t.field for t in quantity.targets if not quantity.limiter]
-        if any(f in MASS_FIELDS for f in fields):
-            fields += ["body_invweight0", "dof_invweight0"]
-        return tuple(dict.fromkeys(fields))
+        return per_world_fields([quantity.prop for _, quantity, _, _ in self.entries])
 
     def bind(self, sim: Simulator) -> None:
         """Resolve names against the compiled model, check the ranges against the nominal values, draw startup."""
@@ -296,21 +294,20 @@ class Randomizer:
         m = sim.mj_model
         written: dict[tuple[str, int | None, int], str] = {}
         for spec, quantity, patterns, selector in self.entries:
-            index = self._select(m, spec.key, quantity, patterns, selector)
+            index = element_ids(m, quantity.prop, selector, patterns, spec.key, self.device)
             param = Param(spec, quantity, index, nominal=torch.empty(0),
                           draw_of=self._shared_draws(m, quantity, index))
-            for target in quantity.targets:
-                view, host = self._target_view(sim, spec.key, quantity, target)
+            for write in quantity.prop.writes:
+                view = write_view(sim, write, quantity.prop.torque_speed, spec.key)
                 for i in index.tolist():
-                    clash = written.get((target.field, target.column, i))
+                    clash = written.get((write.field, write.column, i))
                     if clash is not None:
-                        raise ConfigError(f"{spec.key} and {clash} both randomise {target.field}"
-                                         f"{'' if target.column is None else f'[{target.column}]'} of the same "
-                                         "element; select disjoint elements")
-                    written[(target.field, target.column, i)] = spec.key
-                param.views.append((view, target.sign))
+                        raise ConfigError(f"{spec.key} and {clash} both randomise {write} of the same element; "
+                                         "select disjoint elements")
+                    written[(write.field, write.column, i)] = spec.key
+                param.views.append((view, write.sign))
                 if param.nominal.numel() == 0:
-                    param.nominal = (host[:1, index] * target.sign).clone()
+                    param.nominal = (view[:1, index] * write.sign).clone()
             if quantity.minimum is not None and spec.operation == "additive" and spec.distribution != "gaussian":
                 low = float((param.nominal + spec.lo).min())
                 if low < quantity.minimum or (quantity.minimum > 0 and low <= 0):
@@ -318,27 +315,9 @@ class Randomizer:
                                      f"{'> 0' if quantity.minimum > 0 else '>= 0'}, but nominal + low = {low:.4g}")
             self.params.append(param)
         self.inertia = (InertiaConstants(m, sim.device)
-                        if any(t.field in MASS_FIELDS for p in self.params for t in p.quantity.targets) else None)
+                        if any(p.quantity.prop.changes_inertia for p in self.params) else None)
         everyone = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
         self._draw_params(everyone, "startup")
-
-    def _select(self, m, key: str, quantity: Quantity, patterns: list[str] | None, selector: str | None):
-        if quantity.selects is None:
-            return torch.zeros(1, dtype=torch.long, device=self.device)
-        kind = selector or quantity.selects
-        names, ids = model_names(m, kind, for_geoms=quantity.selects == "geoms")
-        if patterns is None:
-            chosen = list(range(len(names)))
-        else:
-            chosen = []
-            for pattern in patterns:
-                chosen += [i for i in name_matches(pattern, names, f"{key}.{kind}", kind) if i not in chosen]
-        element = [ids[i] for i in chosen]
-        if kind == "bodies" and quantity.selects == "geoms":
-            element = [g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in element]
-        elif kind == "joints":
-            element = [int(m.jnt_dofadr[j]) for j in element]
-        return torch.tensor(sorted(set(element)), dtype=torch.long, device=self.device)
 
     def _shared_draws(self, m, quantity: Quantity, index: torch.Tensor) -> torch.Tensor | None:
         """The ground of a terrain is many geoms (sim/builder.py) but one surface: its parts take one draw."""
@@ -349,21 +328,6 @@ class Randomizer:
         columns: dict[object, int] = {}
         draw_of = [columns.setdefault("ground" if g in ground else g, len(columns)) for g in ids]
         return torch.tensor(draw_of, dtype=torch.long, device=self.device)
-
-    def _target_view(self, sim: Simulator, key: str, quantity: Quantity, target: Target):
-        """(per-world view (W, n[, 3]) to write, its nominal values) of one target."""
-        if quantity.limiter:
-            if sim.torque_speed is None:
-                raise ConfigError(f"{key}: the drives have no torque-speed limit; set env.control.torqueSpeed")
-            view = getattr(sim.torque_speed, target.field)
-            return view, view[:1].clone()
-        full = sim.model_field(target.field)
-        if full.shape[0] != self.num_envs:
-            raise RuntimeError(f"{key}: Model field {target.field} is not batched per world")
-        view = full if target.column is None else full[..., target.column]
-        if target.field == "opt.gravity":
-            view = full.unsqueeze(1)  # (W, 1, 3): one "element", three axes
-        return view, view[:1].clone()
 
     # -------------------------------------------------------------- drawing
     def _schedule(self, spec: Spec) -> torch.Tensor | float:
@@ -397,7 +361,7 @@ class Randomizer:
             if p.spec.apply != when and not (when == "startup" and p.spec.apply == "reset"):
                 continue
             self._draw_param(p, mask)
-            touched_mass |= any(t.field in MASS_FIELDS for t in p.quantity.targets)
+            touched_mass |= p.quantity.prop.changes_inertia
         if touched_mass:
             self._update_inertia_constants(mask)
 
@@ -416,13 +380,8 @@ class Randomizer:
             view[:, p.index] = torch.where(rows, (value * sign).expand_as(current), current)
 
     def _update_inertia_constants(self, mask: torch.Tensor) -> None:
-        if self.inertia is None:
-            return
-        f = self.sim.model_field
-        body, dof = self.inertia.compute(*(f(n).expand(self.num_envs, *f(n).shape[1:]) for n in MASS_FIELDS))
-        for name, value in (("body_invweight0", body), ("dof_invweight0", dof)):
-            view = f(name)
-            view.copy_(torch.where(mask.view((-1,) + (1,) * (value.dim() - 1)), value, view))
+        if self.inertia is not None:
+            self.inertia.update(self.sim, mask)
 
     # ------------------------------------------------------------- per step
     def with_term_noise(self, layout: ObsLayout) -> ObsLayout:
@@ -455,7 +414,7 @@ class Randomizer:
             if p.spec.apply == "interval":
                 due = (progress % p.spec.interval == 0) & (progress > 0)
                 self._draw_param(p, due)
-                if any(t.field in MASS_FIELDS for t in p.quantity.targets):
+                if p.quantity.prop.changes_inertia:
                     self._update_inertia_constants(due)
         if self.delay_spec is not None and self.delay_spec.apply == "interval":
             self._draw_delay((progress % self.delay_spec.interval == 0) & (progress > 0))

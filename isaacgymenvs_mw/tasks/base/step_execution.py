@@ -12,7 +12,7 @@ simulator) and the image observation (torch), so that images show the state afte
 observation writes one of two frame-stack buffers, chosen by the step number's parity (``ImageStack``), so it is
 captured twice, once per buffer, and each step replays the one for its parity.
 
-Start-up: compiling the post-physics step (Inductor and Triton code generation, about 19 s on an H200 host with cold
+Start-up: compiling the post-physics step (Inductor and Triton code generation, about 19 s with cold
 caches) and compiling Warp's kernel modules (about 27 s, on a pool of threads) are both CPU work, and neither needs
 the other. So the first step, before anything else, has the simulator load its kernels with the step's compilation
 running meanwhile in this thread (``Simulator.load_kernels(alongside=...)``; VecTask leaves the kernels to it when
@@ -230,9 +230,9 @@ def start_compile_workers_ignoring_sigterm() -> None:
 
     ``timeout`` and job schedulers send SIGTERM to the whole process group. The training process then stops at the
     next env step and keeps its checkpoint and summary (``learning/launch.py``), but Inductor's workers share the
-    group and leave SIGTERM at its default (they ignore SIGINT themselves), so they died: on an H200 a run signalled
-    in its first step hung there, and one signalled in iteration 1856 died without its checkpoint or summary
-    (2026-11-25). An ignored signal stays ignored across fork and exec, so workers started while it is ignored
+    group and leave SIGTERM at its default (they ignore SIGINT themselves), so they die: a run signalled in its first
+    step then hangs there, and one signalled later can die without its checkpoint or summary. An ignored signal
+    stays ignored across fork and exec, so workers started while it is ignored
     outlive it; they exit with their parent (Inductor's own watchdog). The main thread's handler is ignored only
     while the worker process starts (milliseconds). Nothing happens where the pool already exists or is not made of
     subprocesses."""

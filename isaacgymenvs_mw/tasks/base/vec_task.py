@@ -41,7 +41,7 @@ import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
-from isaacgymenvs_mw.tasks.base.env_keys import episode_length, positive, require_int, warn_unused_ige_keys
+from isaacgymenvs_mw.tasks.base.env_keys import episode_length, positive_env_number, require_int, warn_unused_ige_keys
 from isaacgymenvs_mw.tasks.base.history import ImageStack, ObsHistory, parse_history
 from isaacgymenvs_mw.tasks.base.observation_groups import ObservationGroups
 from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ObsLayout
@@ -95,8 +95,8 @@ class VecTask(ObservationGroups):
         self.num_states = self._yaml_num_states or 0
         self.num_actions = require_int(env, "numActions", minimum=1)
         self.control_freq_inv = require_int(env, "controlFrequencyInv", minimum=1, default=1)
-        self.clip_obs = positive(env, "clipObservations", math.inf)
-        self.clip_actions = positive(env, "clipActions", math.inf)
+        self.clip_obs = positive_env_number(env, "clipObservations", math.inf)
+        self.clip_actions = positive_env_number(env, "clipActions", math.inf)
         self.history_specs = parse_history(env)
         self.obs_history: ObsHistory | None = None
         self.state_history: ObsHistory | None = None

@@ -1,0 +1,48 @@
+"""The schema of the train YAML (rsl-rl-lib's OnPolicyRunner config): checked here before rsl_rl reads it."""
+
+from __future__ import annotations
+
+from isaacgymenvs_mw.utils.config import boolean, real_number, whole_number
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+# Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.
+_TRAIN_CHECKS = {
+    ("runner", "num_steps_per_env"): lambda v, k: whole_number(v, k, 1),
+    ("runner", "max_iterations"): lambda v, k: whole_number(v, k, 0),
+    ("runner", "save_interval"): lambda v, k: whole_number(v, k, 1),
+    ("runner", "init_at_random_ep_len"): boolean,
+    ("algorithm", "learning_rate"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "desired_kl"): lambda v, k: v is None or real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "num_learning_epochs"): lambda v, k: whole_number(v, k, 1),
+    ("algorithm", "num_mini_batches"): lambda v, k: whole_number(v, k, 1),
+    ("algorithm", "clip_param"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "gamma"): lambda v, k: real_number(v, k, 0.0, 1.0),
+    ("algorithm", "lam"): lambda v, k: real_number(v, k, 0.0, 1.0),
+    ("algorithm", "value_loss_coef"): lambda v, k: real_number(v, k, 0.0),
+    ("algorithm", "entropy_coef"): lambda v, k: real_number(v, k),
+    ("algorithm", "max_grad_norm"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "use_clipped_value_loss"): boolean,
+    ("actor", "obs_normalization"): boolean,
+    ("critic", "obs_normalization"): boolean,
+}
+_SCHEDULES = ("adaptive", "fixed")
+
+
+def check_train_config(train_cfg: dict) -> None:
+    """Fail on train YAML values of the wrong kind or range, naming ``train.<section>.<key>``, before rsl_rl runs."""
+    for (section, key), check in _TRAIN_CHECKS.items():
+        if key in (train_cfg.get(section) or {}):
+            check(train_cfg[section][key], f"train.{section}.{key}")
+    schedule = (train_cfg.get("algorithm") or {}).get("schedule", "adaptive")
+    if schedule not in _SCHEDULES:
+        raise ConfigError(f"train.algorithm.schedule={schedule!r} is invalid: choose one of {list(_SCHEDULES)}")
+    for section in ("actor", "critic"):
+        dims = (train_cfg.get(section) or {}).get("hidden_dims", [])
+        if not isinstance(dims, list) or not dims:
+            raise ConfigError(f"train.{section}.hidden_dims={dims!r} is invalid: give a list of layer sizes, "
+                             "e.g. [64, 64]")
+        for dim in dims:
+            whole_number(dim, f"train.{section}.hidden_dims", 1)
+    init_std = ((train_cfg.get("actor") or {}).get("distribution_cfg") or {}).get("init_std")
+    if init_std is not None:
+        real_number(init_std, "train.actor.distribution_cfg.init_std", 0.0, low_open=True)
