@@ -7,18 +7,7 @@ one after-physics sequence (``post_physics_step``) runs every task:
     check_success(); and time-outs -> compute_reward() -> resets: the randomisation layer's on_reset, then reset_idx() -> after_reset()
     -> compute_observations()
 
-A task writes, in torch on ``self.device``, the terms of that sequence, not the sequence:
-  * ``pre_physics_step(a)``    -- turn clipped actions into actuator commands (``self.sim.ctrl``)
-  * ``check_termination()``    -- the envs that failed this step (bool mask); default: none (time-outs only)
-  * ``check_success()``        -- the envs that reached the goal this step (bool mask; default: none). Their
-    episodes end, and the learner bootstraps them like time-outs: a reached goal is not a dead end, so ending
-    there never costs the policy the reward it would have kept earning (without it, FrankaCabinet's policy learned
-    to hold the drawer just short of open)
-  * ``compute_reward()``       -- fill ``rew_buf`` (``tasks/base/rewards.py`` sums named terms)
-  * ``reset_idx(env_mask)``    -- re-initialise the envs selected by a boolean mask of shape (num_envs,)
-  * ``compute_observations()`` -- fill ``obs_buf`` (and ``states_buf`` when numStates > 0)
-  * optional ``refresh_state()`` (quantities the terms read) and ``after_reset(new_episode)`` (per-step bookkeeping
-    that must see the new episodes, e.g. commands resampled on a timer)
+A task writes the terms of that sequence, not the sequence (``tasks/base/contract.py`` lists them).
 
 Resets are boolean masks (an index tensor, as IsaacGymEnvs passes, is turned into one): ``nonzero()`` would make
 the step wait on the GPU. On CUDA the step's torch work is compiled and captured (``step_execution.py``), so the
@@ -41,6 +30,7 @@ import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
+from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
 from isaacgymenvs_mw.tasks.base.env_keys import (episode_length, positive, refuse_removed_keys, require_int,
                                                   warn_unused_ige_keys)
 from isaacgymenvs_mw.tasks.base.history import parse_history
@@ -51,20 +41,8 @@ from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
-from isaacgymenvs_mw.utils.errors import ConfigError
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
-
-# Hooks a task must write, and why VecTask cannot supply them.
-REQUIRED_HOOKS = {
-    "pre_physics_step": "it turns the policy's actions into actuator commands (self.sim.ctrl); only the task knows "
-                        "what an action means",
-    "compute_reward": "it fills rew_buf after the physics (VecTask's post_physics_step calls it after the "
-                      "terminations and before the resets)",
-    "compute_observations": "it fills obs_buf (and states_buf when numStates > 0); reset() and every step return "
-                            "what it writes",
-}
-
 
 class VecTask:
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
@@ -81,7 +59,7 @@ class VecTask:
         # them (headless=False opens MuJoCo's viewer; capture_video records).
         self.cfg = config
         env = config["env"]
-        self._check_required_hooks()
+        check_required_hooks(type(self), VecTask)
         refuse_removed_keys(env)
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
@@ -304,7 +282,7 @@ class VecTask:
 
     # ------------------------------------------------------------------ hooks
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        raise NotImplementedError(_hook_message(type(self), "pre_physics_step"))
+        raise NotImplementedError(hook_message(type(self), "pre_physics_step"))
 
     def post_physics_step(self) -> None:
         """The after-physics sequence every task shares; tasks fill its terms (module docstring), not the order."""
@@ -339,7 +317,7 @@ class VecTask:
         return torch.zeros_like(self.nonfinite_buf)
 
     def compute_reward(self) -> None:
-        raise NotImplementedError(_hook_message(type(self), "compute_reward"))
+        raise NotImplementedError(hook_message(type(self), "compute_reward"))
 
     def reset_envs(self, env_ids: torch.Tensor) -> None:
         """Reset the selected envs: the randomisation layer draws their new model values first (so the task's
@@ -366,33 +344,12 @@ class VecTask:
         """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
 
     def missing_hook_message(self, name: str) -> str:
-        return _hook_message(type(self), name)
-
-    def _check_required_hooks(self) -> None:
-        supplied = {"compute_reward": type(self).post_physics_step is not VecTask.post_physics_step,
-                    "compute_observations": type(self).observation_terms is not VecTask.observation_terms}
-        missing = [name for name in REQUIRED_HOOKS if getattr(type(self), name) is getattr(VecTask, name)
-                   and not supplied.get(name, False)]
-        if missing:
-            raise NotImplementedError("; ".join(_hook_message(type(self), name) for name in missing))
+        return hook_message(type(self), name)
 
     def check_action_size(self) -> None:
-        """``env.numActions`` must equal the model's actuator count (``ctrl`` columns), checked at construction.
-
-        A task whose actions do not map one to one onto actuators overrides this with its own check.
-        """
-        nu = self.sim.num_actuators
-        if nu == 0:
-            raise ConfigError(
-                f"{type(self).__name__}: env.numActions={self.num_actions} but the model has no actuators: give the "
-                "asset's joints a drive (env.control.driveMode / defaultDriveMode) or use an MJCF with <actuator>"
-            )
-        if nu != self.num_actions:
-            listing = [f"{a} -> {j}" for a, j in zip(self.sim.actuator_names, self.sim.actuator_joints)]
-            raise ConfigError(
-                f"{type(self).__name__}: env.numActions={self.num_actions} but the model has {nu} actuators "
-                f"(ctrl columns, name -> joint: {listing}); set env.numActions: {nu}, or change the drives"
-            )
+        """``env.numActions`` must equal the model's actuator count, checked at construction. A task whose actions
+        do not map one to one onto actuators overrides this with its own check."""
+        check_actuator_count(type(self).__name__, self.num_actions, self.sim)
 
     def longest_episode(self) -> int:
         """The most policy steps an episode can last: test mode steps this long (plus 2) before it stops waiting.
@@ -565,6 +522,3 @@ class VecTask:
         """Drop every force of ``apply_body_forces``, one-step and persistent."""
         self.sim.clear_body_forces()
 
-
-def _hook_message(cls: type, name: str) -> str:
-    return f"{cls.__name__} must implement {name}(): {REQUIRED_HOOKS[name]}"
