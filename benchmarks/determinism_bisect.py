@@ -106,7 +106,7 @@ def bisect_vectask(args) -> dict:
         diff = differences({k: v[0] for k, v in parts.items()}, {k: v[1] for k, v in parts.items()})
         if diff:
             columns = (obs_a["obs"] != obs_b["obs"]).any(dim=0).nonzero().flatten().tolist()
-            layout, start, terms = tasks[0].obs_layout, 0, []
+            layout, start, terms = tasks[0].observations.obs_layout, 0, []
             for term in (layout.terms if layout is not None else ()):  # the named terms those columns belong to
                 if any(start <= c < start + term.size for c in columns):
                     terms.append(term.name)

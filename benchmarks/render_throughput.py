@@ -36,8 +36,7 @@ def measure(task_name: str, camera: str, num_envs: int, width: int, height: int,
     key = f"task.env.cameras.{camera}"
     cfg = compose_config([f"task={task_name}", f"num_envs={num_envs}", f"sim_device={sim_device}",
                           f"rl_device={sim_device}", "headless=True", f"{key}.width={width}", f"{key}.height={height}",
-                          f"{key}.outputs=[{','.join(outputs)}]", f"task.env.imageOutputs=[{','.join(outputs)}]",
-                          *overrides])
+                          f"{key}.outputs=[{','.join(outputs)}]", *overrides])
     seed_run(cfg)
     task = build_task(cfg)
     dev, sim = task.sim_device, task.sim
@@ -58,14 +57,14 @@ def measure(task_name: str, camera: str, num_envs: int, width: int, height: int,
     render = _rate(sim.render_cameras, steps, task.num_envs, dev)
     physics = _physics_rate(task, random_step, steps)
     physics_render = _physics_rate(task, random_step, steps, work=physics_and_render)
-    image_bytes = int(torch.Size(task.image_shape).numel())
+    image_bytes = int(torch.Size(task.observations.image_shape).numel())
     steps_per_env = int(cfg.train.runner.num_steps_per_env)
     return {
         "task": task_name,
         "num_envs": task.num_envs,
         "camera": f"{width}x{height}",
         "outputs": outputs,
-        "image_shape": list(task.image_shape),
+        "image_shape": list(task.observations.image_shape),
         "render_frames_per_s": render,
         "physics_env_steps_per_s": physics,
         "physics_render_env_steps_per_s": physics_render,

@@ -61,12 +61,7 @@ class Pendulum(VecTask):
                 ObsTerm("angular_velocity", 1, compute=lambda: velocity)]  # rad/s
 
     def reset_idx(self, mask: torch.Tensor) -> None:
-        """Restart the selected envs at a random angle and speed near upright.
-
-        ``mask`` is a boolean mask over all envs: every env draws a new state, and only the masked rows are
-        written, so nothing waits on the device to find out which envs are done. VecTask restarts their episode
-        clock (``progress_buf``) itself.
-        """
+        """Restart the masked envs at a random angle and speed near upright."""
         shape = (self.num_envs, self.sim.num_dof)
         angle = self.reset_angle * (2.0 * torch.rand(shape, device=self.device) - 1.0)
         velocity = self.reset_velocity * (2.0 * torch.rand(shape, device=self.device) - 1.0)

@@ -126,7 +126,7 @@ def test_a_success_pays_the_bonus_draws_a_new_goal_and_the_episode_goes_on(env):
     assert not torch.allclose(env.goal_quat[0], goals[0])  # a new goal for env 0, in this step's observation
     assert torch.equal(env.goal_quat[1], goals[1])
     np.testing.assert_allclose(env.sim.mocap_quat[:, env.goal_marker].numpy(), env.goal_quat.numpy())
-    obs_goal = env.obs_layout.columns(["goal_quat"], "test")
+    obs_goal = env.observations.obs_layout.columns(["goal_quat"], "test")
     np.testing.assert_allclose(env.obs_buf[0, obs_goal].numpy(), env.goal_quat[0].numpy(), atol=1e-6)
     assert env.progress_buf.tolist() == [6, 6, 0]
     sums = env.rewards.names
@@ -223,7 +223,7 @@ def test_asymmetric_critic_sees_full_state():
                overrides=["task.env.observationType=full_no_vel", "task.env.asymmetric_observations=True"])
     out = env.reset()
     assert out["obs"].shape == (2, 50) and out["states"].shape == (2, 88)
-    force = env.state_layout.columns(["dof_force"], "test")
+    force = env.observations.state_layout.columns(["dof_force"], "test")
     env.step(torch.ones(2, 16))
     # the drives' torques x 10, from MuJoCo Warp's actuator forces (0.5 N m at most)
     np.testing.assert_allclose(env.states_buf[:, force].numpy(), 10.0 * env.sim.actuator_force[:, :16].numpy(),

@@ -57,8 +57,8 @@ def test_the_camera_group_is_the_rendered_image_with_past_frames_that_shift_and_
 def test_stacking_selected_terms_keeps_only_their_channels_of_past_frames():
     """env.history.camera.terms: the current frame keeps every term; past frames keep the named terms' channels, and
     a step's observation is still intact after the next step (the learner stores it then)."""
-    task = make(overrides=("task.env.imageOutputs=[rgb,depth]", "task.env.cameras.front.outputs=[rgb,depth]",
-                           "task.env.cameras.front.depthFar=6.0", "+task.env.history.camera.terms=[depth]"))
+    task = make(overrides=("task.env.cameras.front.outputs=[rgb,depth]", "task.env.cameras.front.depthFar=6.0",
+                           "+task.env.history.camera.terms=[depth]"))
     first = task.reset()["camera"]
     assert first.shape == (4, 4 + 2 * 1, 16, 32)
     depth = lambda: torch.round(task.sim.camera("front").depth * 255 / 6.0).to(torch.uint8)  # noqa: E731
@@ -101,18 +101,37 @@ class _BackCamera(CartpoleCamera):
         return [ImageTerm("pixels", camera="back")]
 
 
+class _FrontDepth(CartpoleCamera):
+    def image_terms(self) -> list[ImageTerm]:
+        return [ImageTerm("far", camera="front", output="depth")]
+
+
 def test_image_terms_without_their_camera_or_output_are_one_line_errors():
     task_cfg = to_dict(compose_config(["task=CartpoleCamera", "num_envs=2", *SMALL]).task)
     with pytest.raises(ConfigError, match=r"^image observation term 'pixels' reads camera 'back', which env\.cameras "
                                           r"does not declare \(cameras: \['front'\]\); declare env\.cameras\.back$"):
         _BackCamera(task_cfg, "cpu", "cpu", 0, True)
-    with pytest.raises(ConfigError, match=r"^image observation term 'rgb' reads the rgb image of camera 'front', but "
-                                          r"task\.env\.cameras\.front\.outputs=\['depth'\] does not render it; add rgb to "
-                                          r"task\.env\.cameras\.front\.outputs$"):
-        make(overrides=("task.env.cameras.front.outputs=[depth]",))
+    with pytest.raises(ConfigError, match=r"^image observation term 'far' reads the depth image of camera 'front', but "
+                                          r"env\.cameras\.front\.outputs=\['rgb'\] does not render it; add depth to "
+                                          r"env\.cameras\.front\.outputs$"):
+        _FrontDepth(task_cfg, "cpu", "cpu", 0, True)
     with pytest.raises(ConfigError, match=r"^task\.env\.history\.camera needs image observation terms"):
         isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True,
                              overrides=["+task.env.history.camera.length=2"])
+
+
+def test_a_camera_is_declared_once_in_the_yaml():
+    """The policy observes what each camera of env.cameras renders (rgb and depth; not segmentation), named by the
+    output, with the camera's name in front when there are several; the removed env.imageOutputs is refused."""
+    task = make(overrides=("task.env.cameras.front.outputs=[rgb,depth,segmentation]",
+                           "task.env.history.camera.length=1"))
+    assert [t.name for t in task.observations.images.terms] == ["rgb", "depth"]
+    assert task.reset()["camera"].shape == (4, 4, 16, 32)
+    two = make(overrides=("task.env.history.camera.length=1", "+task.env.cameras.side={width: 32, height: 16}"))
+    assert [(t.name, t.camera) for t in two.observations.images.terms] == [("front_rgb", "front"), ("side_rgb", "side")]
+    with pytest.raises(ConfigError, match=r"^task\.env\.imageOutputs=\['rgb'\] is no longer read: the policy observes "
+                                          r"the outputs its cameras render: set task\.env\.cameras\.<name>\.outputs$"):
+        make(overrides=("+task.env.imageOutputs=[rgb]",))
 
 
 def test_the_image_model_scales_bytes_to_unit_range():
@@ -172,7 +191,7 @@ def test_videos_show_what_the_policy_sees_beside_the_view(tmp_path):
     seen = []
     for _ in range(3):
         task.step(torch.ones(4, 1))
-        seen.append(task.camera_picture(0).numpy())
+        seen.append(task.observations.camera_picture(task.control_steps, 0).numpy())
     task.close()
     frames, _ = read_video(tmp_path / "videos" / "video_1.mp4")
     scale = 480 // 16

@@ -46,7 +46,7 @@ def test_the_critic_state_is_the_observation_and_the_simulators_knowledge(task):
     generator = torch.Generator().manual_seed(3)
     for _ in range(12):  # moving: the arm swings and the cubes settle, so velocities are not all zero
         obs, *_ = env.step(torch.rand(2, env.num_actions, generator=generator) * 2 - 1)
-    layout = env.state_layout
+    layout = env.observations.state_layout
     assert torch.equal(obs["states"][:, :env.num_obs], obs["obs"])  # the policy's observation first, as it is
     # Distinct speeds in every dof (cubes at rest would read 0 from any column), then the state computed again.
     env.sim.qvel.copy_(torch.arange(env.sim.qvel.numel(), dtype=torch.float32).view_as(env.sim.qvel) * 0.01 + 0.1)

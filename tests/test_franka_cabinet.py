@@ -83,7 +83,7 @@ def test_observation_is_23_values_and_matches_mujoco_c(env):
     env.reset()
     for _ in range(5):
         obs, *_ = env.step(torch.rand(2, 8) * 2 - 1)
-    assert obs["obs"].shape == (2, 23) and env.obs_layout.names == ["dof_pos", "dof_vel", "to_handle", "drawer_pos",
+    assert obs["obs"].shape == (2, 23) and env.observations.obs_layout.names == ["dof_pos", "dof_vel", "to_handle", "drawer_pos",
                                                                     "drawer_vel"]
     # Body and site poses are those the last physics substep started from (MuJoCo computes them before it
     # integrates); recompute them from the current state so that both sides see one state.

@@ -177,14 +177,14 @@ def camera_frame(pos, target):
 def test_depth_task_groups_hide_the_cube_from_the_actor_only():
     env = make("FrankaCubeLiftDepth", num_envs=2)
     obs = env.reset()
-    assert env.obs_layout.names == ["dof_pos", "dof_vel", "dof_targets", "grasp_pos"]
-    assert env.state_layout.names == ["cube_pos", "cube_quat", "cube_to_grasp"]
+    assert env.observations.obs_layout.names == ["dof_pos", "dof_vel", "dof_targets", "grasp_pos"]
+    assert env.observations.state_layout.names == ["cube_pos", "cube_quat", "cube_to_grasp"]
     groups = RslRlVecEnv(env).get_observations()
     assert groups["policy"].shape == (2, 29) and groups["critic"].shape == (2, 10)
     assert groups["camera"].shape == (2, 1, 64, 64) and groups["camera"].dtype == torch.uint8
     assert torch.equal(obs["states"][:, :3], env.cube.root_pos)  # the critic's state starts with the cube
     state_task = make("FrankaCubeLift", num_envs=2)
-    assert state_task.num_obs == 39 and state_task.obs_layout.names[-3:] == ["cube_pos", "cube_quat", "cube_to_grasp"]
+    assert state_task.num_obs == 39 and state_task.observations.obs_layout.names[-3:] == ["cube_pos", "cube_quat", "cube_to_grasp"]
 
 
 # World 0 has the cube at A_POS, world 1 at B_POS: each one's pixels that see its cube see the table in the other.
@@ -280,7 +280,7 @@ def test_the_rgb_image_shows_the_red_cube_where_a_pinhole_camera_puts_it():
     """FrankaCubeLiftRGB: the pixel through which a pinhole camera sees the cube's top centre is the cube's dark red
     (red above green and blue) in the world that has the cube there, the brown table in the other."""
     env, cam = two_placed_cubes("FrankaCubeLiftRGB")
-    assert env.obs_layout.names == ["dof_pos", "dof_vel", "dof_targets", "grasp_pos"]
+    assert env.observations.obs_layout.names == ["dof_pos", "dof_vel", "dof_targets", "grasp_pos"]
     obs, _, _, _ = env.step(torch.zeros(2, 8))
     image = obs["camera"].int()
     assert image.shape == (2, 3, 64, 64) and obs["camera"].dtype == torch.uint8

@@ -177,7 +177,7 @@ def test_reset_places_arm_and_cubes_as_ige(env):
 
 def test_observation_equals_mujoco_c_on_the_same_state(env):
     obs = env.reset()["obs"].numpy()
-    assert env.obs_layout.names == ["cube_a_quat", "cube_a_pos", "cube_a_to_b", "grasp_pos", "grasp_quat", "dof_pos"]
+    assert env.observations.obs_layout.names == ["cube_a_quat", "cube_a_pos", "cube_a_to_b", "grasp_pos", "grasp_quat", "dof_pos"]
     m = env.sim.mj_model
     d = mujoco.MjData(m)
     for i in range(env.num_envs):

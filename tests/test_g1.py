@@ -222,12 +222,12 @@ def test_task_model_drives_and_layout(g1):
     expected = torch.tensor([default_angle(n) for n in UNITREE_ORDER])
     assert torch.allclose(g1.default_dof_pos, expected)
     # Observation: 12 + 3 x 23 (the legged terms scale with the joint count); critic: + 5 (2 feet).
-    sizes = {t.name: t.size for t in g1.obs_layout.terms}
+    sizes = {t.name: t.size for t in g1.observations.obs_layout.terms}
     assert sizes == {"base_lin_vel": 3, "base_ang_vel": 3, "projected_gravity": 3, "commands": 3, "dof_pos": 23,
                      "dof_vel": 23, "actions": 23}
-    assert g1.obs_layout.size == 81 == g1.obs_buf.shape[1]
-    assert g1.state_layout.size == 86 == g1.states_buf.shape[1]
-    assert g1.state_layout.slices["feet_contact"] == slice(84, 86)
+    assert g1.observations.obs_layout.size == 81 == g1.obs_buf.shape[1]
+    assert g1.observations.state_layout.size == 86 == g1.states_buf.shape[1]
+    assert g1.observations.state_layout.slices["feet_contact"] == slice(84, 86)
     assert m.nu == 23
 
 

@@ -174,7 +174,7 @@ def test_task_keeps_the_asset_motors_and_declares_igs_layout(request, name):
     m, ref = task.sim.mj_model, mujoco.MjModel.from_xml_path(str(ASSETS / f"{name.lower()}.xml"))
     assert m.nu == ref.nu == task.num_actions
     np.testing.assert_array_equal(m.actuator_gear, ref.actuator_gear)
-    assert [(t.name, t.size) for t in task.obs_layout.terms] == IGE_LAYOUT[name]
+    assert [(t.name, t.size) for t in task.observations.obs_layout.terms] == IGE_LAYOUT[name]
     assert task.num_obs == sum(size for _, size in IGE_LAYOUT[name]) == {"Ant": 60, "Humanoid": 108}[name]
     # the start pose comes from env.baseInitState
     np.testing.assert_allclose(m.qpos0[:7], task.cfg["env"]["baseInitState"]["pos"] + [1.0, 0.0, 0.0, 0.0])
@@ -207,13 +207,13 @@ def test_observation_terms_match_a_numpy_reference(request, name):
         if reset[i]:
             continue
         expected = ref.observation(qpos[i], qvel[i], sens[i], qfrc[i], actions[i].numpy())
-        for term in task.obs_layout.terms:
-            got = obs["obs"][i, task.obs_layout.slices[term.name]].numpy()
+        for term in task.observations.obs_layout.terms:
+            got = obs["obs"][i, task.observations.obs_layout.slices[term.name]].numpy()
             np.testing.assert_allclose(got, expected[term.name], rtol=1e-4, atol=2e-4, err_msg=f"{name} {term.name}")
         checked += 1
     assert checked >= 2
     # foot sensors saw contact somewhere: the forces term is not a column of zeros
-    assert np.abs(obs["obs"][:, task.obs_layout.slices["foot_forces"]].numpy()).max() > 0
+    assert np.abs(obs["obs"][:, task.observations.obs_layout.slices["foot_forces"]].numpy()).max() > 0
 
 
 @pytest.mark.parametrize("name", ["Ant", "Humanoid"])
@@ -228,10 +228,10 @@ def test_the_observation_reset_returns_describes_the_new_state(request, name):
     for i in range(task.num_envs):
         # a new episode shows no actuator force yet and no last action
         expected = ref.observation(qpos[i], qvel[i], sens[i], np.zeros_like(qvel[i]), np.zeros(task.num_actions))
-        for term in task.obs_layout.terms:
-            got = obs[i, task.obs_layout.slices[term.name]].numpy()
+        for term in task.observations.obs_layout.terms:
+            got = obs[i, task.observations.obs_layout.slices[term.name]].numpy()
             np.testing.assert_allclose(got, expected[term.name], rtol=1e-4, atol=2e-4, err_msg=f"{name} {term.name}")
-    assert np.allclose(obs[:, task.obs_layout.slices["up_proj"]].numpy(), 1.0, atol=0.05)  # upright at the start
+    assert np.allclose(obs[:, task.observations.obs_layout.slices["up_proj"]].numpy(), 1.0, atol=0.05)  # upright at the start
 
 
 # ------------------------------------------------------------------------------------------------- reward
@@ -272,7 +272,7 @@ def test_a_fall_earns_the_death_cost_and_resets_to_the_start_pose(request, name)
     assert float(rew[0]) == pytest.approx(env["deathCost"] * env["rewardScale"])
     assert extras["time_outs"][0] == 0
     # the observation of env 0 is its new episode's first state
-    layout = task.obs_layout
+    layout = task.observations.obs_layout
     assert float(obs["obs"][0, layout.slices["torso_height"]]) == pytest.approx(env["baseInitState"]["pos"][2])
     assert not obs["obs"][0, layout.slices["actions"]].any()
     scaled = obs["obs"][0, layout.slices["dof_pos_scaled"]]

@@ -31,12 +31,12 @@ def test_legged_layout_matches_what_the_task_writes(robot):
 
     task = isaacgymenvs_mw.make(robot, num_envs=2, sim_device="cpu", rl_device="cpu")
     obs = task.reset()
-    assert task.obs_layout.size == obs["obs"].shape[1] == 48
-    assert task.state_layout.size == obs["states"].shape[1] == 55
+    assert task.observations.obs_layout.size == obs["obs"].shape[1] == 48
+    assert task.observations.state_layout.size == obs["states"].shape[1] == 55
     # The critic's copy of the policy terms is noiseless; the policy's joint velocities carry the YAML's noise.
-    assert float(task.state_layout.noise_scale("cpu").abs().sum()) == 0.0
-    noise = task.obs_layout.noise_scale("cpu")
-    assert float(noise[task.obs_layout.slices["dof_vel"]][0]) == pytest.approx(1.5 * 0.05)
+    assert float(task.observations.state_layout.noise_scale("cpu").abs().sum()) == 0.0
+    noise = task.observations.obs_layout.noise_scale("cpu")
+    assert float(noise[task.observations.obs_layout.slices["dof_vel"]][0]) == pytest.approx(1.5 * 0.05)
     with pytest.raises(ValueError, match="env.numStates=54"):
         isaacgymenvs_mw.make(robot, num_envs=2, sim_device="cpu", rl_device="cpu",
                              overrides=["+task.env.numStates=54"])

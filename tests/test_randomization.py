@@ -267,8 +267,8 @@ def test_observation_noise_adds_the_terms_noise_and_the_section_noise():
     obs = task.reset()["obs"]
     states = task.get_state()  # the critic's copy is noiseless
     noise = (obs - states[:, :48]).numpy()
-    dof_vel = task.obs_layout.slices["dof_vel"]
-    scale = task.obs_layout.terms[5].scale
+    dof_vel = task.observations.obs_layout.slices["dof_vel"]
+    scale = task.observations.obs_layout.terms[5].scale
     # U(-2 scale, 2 scale) + N(0, 0.5): variance (4 scale)^2 / 12 + 0.25
     expected_std = math.sqrt((4 * scale) ** 2 / 12 + 0.25)
     _moments_ok(noise[:, dof_vel].ravel(), mean=0.0, std=expected_std)

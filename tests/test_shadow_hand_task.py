@@ -31,7 +31,7 @@ def env():
 
 
 def columns(env, layout, name: str) -> list[int]:
-    return getattr(env, layout).columns([name], "test")
+    return getattr(env.observations, layout).columns([name], "test")
 
 
 def dof(env, joint: str) -> int:
@@ -94,7 +94,7 @@ def test_openai_observation_is_fingertip_positions_cube_position_relative_rotati
     task.step(torch.rand(2, 20) * 2 - 1)
     task.compute_observations()
     obs = task.obs_buf
-    names = [t.name for t in task.obs_layout.terms]
+    names = [t.name for t in task.observations.obs_layout.terms]
     assert names == ["fingertip_pos", "object_pos", "object_to_goal_quat", "actions"]
     tips = torch.stack([task.sim.xpos[:, task.sim.body_id(b)] for b in FINGERTIPS], dim=1).reshape(2, 15)
     np.testing.assert_allclose(obs[:, :15].numpy(), tips.numpy(), atol=1e-6)
@@ -240,7 +240,7 @@ def test_openai_ff_variant_is_ige_setting_with_an_asymmetric_critic():
     assert task.env_numbers["successTolerance"] == 0.4 and task.env_numbers["actionsMovingAverage"] == 0.3
     assert task.max_consecutive_successes == 50 and task.force_scale == 1.0
     assert task.rewards.weights[task.rewards.names.index("fall")].item() == -50.0
-    force = task.state_layout.columns(["dof_force"], "test")
+    force = task.observations.state_layout.columns(["dof_force"], "test")
     task.step(torch.ones(2, 20))
     task.compute_observations()  # unclipped
     np.testing.assert_allclose(task.states_buf[:, force].numpy(), (10.0 * task.sim.qfrc_actuator[:, :24]).numpy(),

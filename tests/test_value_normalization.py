@@ -15,7 +15,6 @@ import pytest
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
-from rsl_rl.algorithms import PPO
 
 from isaacgymenvs_mw.learning.ppo import VALUE_NORMALIZER_KEY, SyncFreePPO, ValueNormalizer
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -205,7 +204,7 @@ def test_rollout_stores_real_values_and_gae_and_time_out_bootstrap_use_them():
     data = torch.Generator().manual_seed(6)
     torch.manual_seed(7)
     obs = observations(data)
-    rewards, dones, time_outs = [], [], []
+    rewards, dones = [], []
     for _ in range(NUM_STEPS):
         with torch.inference_mode():
             actions = alg.act(obs)

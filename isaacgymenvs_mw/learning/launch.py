@@ -214,7 +214,9 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
 
     every, length = int(cfg.get("capture_video_freq", 1464)), int(cfg.get("capture_video_len", 100))
     # A task that observes camera images: what the policy sees (env 0's latest frame) beside the view.
-    beside = None if getattr(task, "images", None) is None else (lambda: task.camera_picture(0).cpu().numpy())
+    observations = task.observations
+    beside = None if observations.images is None else (
+        lambda: observations.camera_picture(task.control_steps).cpu().numpy())
     task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
                                         beside=beside)
     print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)

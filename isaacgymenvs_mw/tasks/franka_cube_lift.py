@@ -22,7 +22,7 @@ import torch
 
 from isaacgymenvs_mw.tasks import franka_cubes as cubes
 from isaacgymenvs_mw.tasks.base.franka import FrankaArm
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
+from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm, camera_terms
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import boolean, real_number
@@ -37,7 +37,6 @@ _NUMBER_KEYS = {"actionScale": True, "frankaDofNoise": False, "startPositionNois
 REWARD_SCALE_KEYS = {"dist": "distRewardScale", "grasp": "graspRewardScale",
                      "lift_height": "liftHeightRewardScale", "lift": "liftRewardScale"}
 DOF_VEL_SCALE = 0.1  # joint speeds (up to about 2.6 rad/s) observed x 0.1, as IGE's Franka tasks (dof_vel_scale)
-CAMERA = "overhead"  # FrankaCubeLiftDepth's env.cameras entry
 
 
 class FrankaCubeLift(VecTask):
@@ -148,10 +147,8 @@ class FrankaCubeLift(VecTask):
 
 
 class FrankaCubeLiftDepth(FrankaCubeLift):
-    """FrankaCubeLift whose policy finds the cube in a depth image: it observes the arm and camera ``overhead``'s
-    depth (the "camera" group); the cube's pose goes to the critic's state."""
-
-    image_output = "depth"  # which of the camera's outputs the policy sees
+    """FrankaCubeLift whose policy finds the cube in a depth image: it observes the arm and what its camera renders
+    (``env.cameras.overhead``, depth; the "camera" group); the cube's pose goes to the critic's state."""
 
     def observation_terms(self) -> list[ObsTerm]:
         return self.proprioception_terms()
@@ -160,14 +157,13 @@ class FrankaCubeLiftDepth(FrankaCubeLift):
         return self.cube_terms() + self.privileged_terms()
 
     def image_terms(self) -> list[ImageTerm]:
-        return [ImageTerm(self.image_output, camera=CAMERA, output=self.image_output)]
+        return camera_terms(self.sim.cameras)
 
 
 class FrankaCubeLiftRGB(FrankaCubeLiftDepth):
     """FrankaCubeLiftDepth seeing the same camera's colour image: the dark red cube on the brown table top differs
-    from it by 37-49 of 255 levels per channel, where in depth the cube's height is at most 13 of 255 levels."""
-
-    image_output = "rgb"
+    from it by 37-49 of 255 levels per channel, where in depth the cube's height is at most 13 of 255 levels. Only its
+    YAML differs: the camera renders rgb."""
 
 
 def sample_cube(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float) -> tuple[torch.Tensor, torch.Tensor]:

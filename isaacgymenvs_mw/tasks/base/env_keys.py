@@ -43,6 +43,19 @@ def episode_length(env: dict, control_dt: float, steps_in_code: int | None) -> t
     return steps, seconds
 
 
+# Keys that another key now says: refused, naming the one to use (one source for each fact).
+REMOVED_ENV_KEYS = {
+    "imageOutputs": "the policy observes the outputs its cameras render: set env.cameras.<name>.outputs",
+}
+
+
+def refuse_removed_keys(env: dict) -> None:
+    """Fail, in one line, on an ``env`` key of ``REMOVED_ENV_KEYS``."""
+    for key, instead in REMOVED_ENV_KEYS.items():
+        if key in env:
+            raise ConfigError(f"env.{key}={env[key]!r} is no longer read: {instead}")
+
+
 IGE_UNUSED_ENV_KEYS = {
     "envSpacing": "each env is its own MuJoCo world, so there is no shared space to lay envs out in",
     "enableDebugVis": "there is no debug drawing (headless=False opens MuJoCo's viewer on env 0; capture_video records "

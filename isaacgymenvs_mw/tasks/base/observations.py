@@ -9,7 +9,7 @@ description an exported policy carries.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 
@@ -106,6 +106,19 @@ class ImageTerm:
         return IMAGE_OUTPUTS[self.output]
 
 
+def camera_terms(cameras: Any | None) -> list[ImageTerm]:
+    """Image terms for every observable output (rgb, depth) of every ``env.cameras`` entry (``cameras``: the
+    simulator's ``sim.cameras``), in YAML order: what the YAML declares is what the policy sees, so a camera and its
+    outputs are named once. A term is named by its output, prefixed by ``<camera>_`` when there are several cameras."""
+    cameras = cameras.views if cameras is not None else {}
+    if not cameras:
+        raise ConfigError("this task observes its cameras, but env.cameras declares none; declare one: "
+                          "env.cameras.<name>: {pos, lookAt, width, height, outputs: [rgb]}")
+    prefix = len(cameras) > 1
+    return [ImageTerm(f"{name}_{output}" if prefix else output, camera=name, output=output)
+            for name, view in cameras.items() for output in view.outputs if output in IMAGE_OUTPUTS]
+
+
 class ImageGroup:
     """The image observation: the terms' images stacked along channels, (num_envs, C, H, W) uint8 on the device.
 
@@ -113,12 +126,12 @@ class ImageGroup:
     (``learning/models.py``). Every term must come from a camera of the same width and height.
     """
 
-    def __init__(self, terms: Sequence[ImageTerm], sim) -> None:
+    def __init__(self, terms: Sequence[ImageTerm], cameras: Any | None) -> None:
         names = [t.name for t in terms]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
             raise ConfigError(f"image observation terms {duplicates} appear more than once; names must be unique")
-        cameras = sim.cameras.views if sim.cameras is not None else {}
+        cameras = cameras.views if cameras is not None else {}  # the simulator's sim.cameras
         self.sources = []
         for t in terms:
             if t.output not in IMAGE_OUTPUTS:

@@ -7,13 +7,14 @@ were what a step cost beyond the physics. So, on CUDA:
   * after a few eager warm-up steps, the pre- and post-physics work are captured as two CUDA graphs
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
 Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
-A task with cameras adds two phases after those (``sensors``): the render (Warp: its own graph, replayed by the
-simulator) and the image observation (torch), so that images show the state after the resets. The image
-observation writes one of two frame-stack buffers, chosen by the step number's parity (``ImageStack``), so it is
-captured twice, once per buffer, and each step replays the one for its parity.
+VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics,
+sense (the sensors' refresh after the step's resets: the cameras render there, with Warp graphs of their own), and,
+when the task observes camera images, the image observation (torch), so that images show the state after the
+resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
+(``ImageStack``), so it is captured twice, once per buffer, and each step replays the one for its parity.
 
-Start-up: compiling the post-physics step (Inductor and Triton code generation, about 19 s with cold
-caches) and compiling Warp's kernel modules (about 27 s, on a pool of threads) are both CPU work, and neither needs
+Start-up: compiling the post-physics step (Inductor and Triton code generation, tens of seconds with cold caches)
+and compiling Warp's kernel modules (tens of seconds, on a pool of threads) are both CPU work, and neither needs
 the other. So the first step, before anything else, has the simulator load its kernels with the step's compilation
 running meanwhile in this thread (``Simulator.load_kernels(alongside=...)``; VecTask leaves the kernels to it when
 the step is compiled). The step is compiled there without being run: the compiled code is called in a dry mode that
@@ -31,6 +32,7 @@ import threading
 import time
 import types
 import warnings
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -42,15 +44,28 @@ from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 WARMUP_STEPS = 3
 
 
+@dataclass(frozen=True)
+class StepPhases:
+    """One env step as VecTask hands it over, in the order it runs. A phase that takes an ``int`` gets the number of
+    the step (0-based), the one clock of the run."""
+
+    before: Callable[[torch.Tensor], None]  # torch: clipped actions -> actuator commands (captured)
+    physics: Callable[[], None]  # the simulator's controlFrequencyInv physics steps (its own graph)
+    after: Callable[[], None]  # torch: terminations, reward, resets, observations (compiled, captured)
+    sense: Callable[[int], None]  # the sensors' refresh after the resets (Warp, with graphs of its own)
+    observe_images: Callable[[int], None] | None = None  # torch: the image observation (captured per parity)
+
+
 class StepExecution:
-    """Runs ``before(actions)``, ``physics()``, ``after()`` for one env step in the cheapest way the device allows.
+    """Runs the ``phases`` of one env step in the cheapest way the device allows, and counts the steps.
 
     ``name`` is the task's class name, for messages; ``sim_cfg`` is the task YAML's ``sim`` section."""
 
-    def __init__(self, name: str, before: Callable[[torch.Tensor], None], physics: Callable[[], None],
-                 after: Callable[[], None], sim_cfg: dict, graphs_possible: bool, action_shape: tuple[int, int],
-                 device: str, load_kernels: Callable[[Callable[[], None] | None], None] | None = None) -> None:
-        self.name, self.before, self.physics = name, before, physics
+    def __init__(self, name: str, phases: StepPhases, sim_cfg: dict, graphs_possible: bool,
+                 action_shape: tuple[int, int], device: str,
+                 load_kernels: Callable[[Callable[[], None] | None], None] | None = None) -> None:
+        self.name, self.phases = name, phases
+        self.before, self.physics, after = phases.before, phases.physics, phases.after
         self.graphs_wanted = bool(sim_cfg.get("captureStep", True)) and graphs_possible
         self.compiled = _compile_wanted(sim_cfg.get("compileStep", "auto"), self.graphs_wanted)
         self._step = _CompiledStep(after) if self.compiled else None
@@ -63,11 +78,8 @@ class StepExecution:
         self.compiled_at: str | None = None
         self.graph_actions = torch.zeros(action_shape, device=device)  # a captured graph reads its input here
         self.graphs: tuple[torch.cuda.CUDAGraph, ...] | None = None  # before, after[, observe even, odd]
-        # (render, observe) when the task observes camera images: run after ``after`` (VecTask sets it); observe
-        # takes the number of the step it observes (0-based).
-        self.sensors: tuple[Callable[[], None], Callable[[int], None]] | None = None
         self.device = device
-        self.steps = 0
+        self.steps = 0  # env steps run so far: the run's one step counter
 
     @property
     def mode(self) -> str:
@@ -90,16 +102,16 @@ class StepExecution:
             before.replay()
             self.physics()
             after.replay()
-            if self.sensors is not None:
-                self.sensors[0]()
+            self.phases.sense(self.steps)
+            if self.phases.observe_images is not None:
                 self.graphs[2 + self.steps % 2].replay()
         else:
             self.before(actions)
             self.physics()
             self.after()
-            if self.sensors is not None:
-                self.sensors[0]()
-                self.sensors[1](self.steps)
+            self.phases.sense(self.steps)
+            if self.phases.observe_images is not None:
+                self.phases.observe_images(self.steps)
         self.steps += 1
 
     def _first_compiled_call(self) -> None:
@@ -136,10 +148,10 @@ class StepExecution:
                 self.before(self.graph_actions)
             with torch.cuda.graph(after, pool=before.pool()):
                 self.after()
-            observe = [torch.cuda.CUDAGraph() for _ in range(2 if self.sensors is not None else 0)]
+            observe = [torch.cuda.CUDAGraph() for _ in range(2 if self.phases.observe_images is not None else 0)]
             for step in range(self.steps, self.steps + len(observe)):  # graphs[2 + parity]: steps of that parity
                 with torch.cuda.graph(observe[step % 2], pool=before.pool()):
-                    self.sensors[1](step)
+                    self.phases.observe_images(step)
         except Exception as err:
             raise RuntimeError(
                 f"sim.captureStep: {self.name}'s step could not be captured as CUDA graphs ({err}). A task whose "
@@ -230,9 +242,9 @@ def start_compile_workers_ignoring_sigterm() -> None:
 
     ``timeout`` and job schedulers send SIGTERM to the whole process group. The training process then stops at the
     next env step and keeps its checkpoint and summary (``learning/launch.py``), but Inductor's workers share the
-    group and leave SIGTERM at its default (they ignore SIGINT themselves), so they die: a run signalled in its first
-    step then hangs there, and one signalled later can die without its checkpoint or summary. An ignored signal
-    stays ignored across fork and exec, so workers started while it is ignored
+    group and leave SIGTERM at its default (they ignore SIGINT themselves), so they would die with it: a run
+    signalled while the step compiles would hang there, and one signalled later would die without its checkpoint or
+    summary. An ignored signal stays ignored across fork and exec, so workers started while it is ignored
     outlive it; they exit with their parent (Inductor's own watchdog). The main thread's handler is ignored only
     while the worker process starts (milliseconds). Nothing happens where the pool already exists or is not made of
     subprocesses."""

@@ -7,18 +7,7 @@ one after-physics sequence (``post_physics_step``) runs every task:
     check_success(); and time-outs -> compute_reward() -> resets: the randomisation layer's on_reset, then reset_idx() -> after_reset()
     -> compute_observations()
 
-A task writes, in torch on ``self.device``, the terms of that sequence, not the sequence:
-  * ``pre_physics_step(a)``    -- turn clipped actions into actuator commands (``self.sim.ctrl``)
-  * ``check_termination()``    -- the envs that failed this step (bool mask); default: none (time-outs only)
-  * ``check_success()``        -- the envs that reached the goal this step (bool mask; default: none). Their
-    episodes end, and the learner bootstraps them like time-outs: a reached goal is not a dead end, so ending
-    there never costs the policy the reward it would have kept earning (without it, FrankaCabinet's policy learned
-    to hold the drawer just short of open)
-  * ``compute_reward()``       -- fill ``rew_buf`` (``tasks/base/rewards.py`` sums named terms)
-  * ``reset_idx(env_mask)``    -- re-initialise the envs selected by a boolean mask of shape (num_envs,)
-  * ``compute_observations()`` -- fill ``obs_buf`` (and ``states_buf`` when numStates > 0)
-  * optional ``refresh_state()`` (quantities the terms read) and ``after_reset(new_episode)`` (per-step bookkeeping
-    that must see the new episodes, e.g. commands resampled on a timer)
+A task writes the terms of that sequence, not the sequence (``tasks/base/contract.py`` lists them).
 
 Resets are boolean masks (an index tensor, as IsaacGymEnvs passes, is turned into one): ``nonzero()`` would make
 the step wait on the GPU. On CUDA the step's torch work is compiled and captured (``step_execution.py``), so the
@@ -41,31 +30,21 @@ import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
-from isaacgymenvs_mw.tasks.base.env_keys import episode_length, positive_env_number, require_int, warn_unused_ige_keys
-from isaacgymenvs_mw.tasks.base.history import ImageStack, ObsHistory, parse_history
-from isaacgymenvs_mw.tasks.base.observation_groups import ObservationGroups
-from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ObsLayout
+from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
+from isaacgymenvs_mw.tasks.base.env_keys import (episode_length, positive_env_number, refuse_removed_keys, require_int,
+                                                  warn_unused_ige_keys)
+from isaacgymenvs_mw.tasks.base.history import parse_history
+from isaacgymenvs_mw.tasks.base.observation_groups import Observations
+from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
-from isaacgymenvs_mw.tasks.base.step_execution import StepExecution
+from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
-from isaacgymenvs_mw.utils.errors import ConfigError
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
-# Hooks a task must write, and why VecTask cannot supply them.
-REQUIRED_HOOKS = {
-    "pre_physics_step": "it turns the policy's actions into actuator commands (self.sim.ctrl); only the task knows "
-                        "what an action means",
-    "compute_reward": "it fills rew_buf after the physics (VecTask's post_physics_step calls it after the "
-                      "terminations and before the resets)",
-    "compute_observations": "it fills obs_buf (and states_buf when numStates > 0); reset() and every step return "
-                            "what it writes",
-}
-
-
-class VecTask(ObservationGroups):
+class VecTask:
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
     # True: the episodes that end by ``check_success`` are counted as successes, logged as Episode/success (the rate
     # over ended episodes) and in test mode's eval "success" (each env's first episode).
@@ -80,7 +59,8 @@ class VecTask(ObservationGroups):
         # them (headless=False opens MuJoCo's viewer; capture_video records).
         self.cfg = config
         env = config["env"]
-        self._check_required_hooks()
+        check_required_hooks(type(self), VecTask)
+        refuse_removed_keys(env)
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
         self.device = self.sim_device
@@ -88,28 +68,17 @@ class VecTask(ObservationGroups):
 
         self.num_environments = require_int(env, "numEnvs", minimum=1)
         # A task that declares its observation terms derives these sizes; a YAML value must then agree.
-        self.declares_layout = type(self).observation_terms is not VecTask.observation_terms
-        self._yaml_num_obs = require_int(env, "numObservations", minimum=1, default=0 if self.declares_layout else None)
-        self._yaml_num_states = None if env.get("numStates") is None else require_int(env, "numStates", minimum=0)
-        self.num_observations = self._yaml_num_obs
-        self.num_states = self._yaml_num_states or 0
+        declares_layout = type(self).observation_terms is not VecTask.observation_terms
+        num_obs = require_int(env, "numObservations", minimum=1, default=0 if declares_layout else None)
+        num_states = None if env.get("numStates") is None else require_int(env, "numStates", minimum=0)
         self.num_actions = require_int(env, "numActions", minimum=1)
         self.control_freq_inv = require_int(env, "controlFrequencyInv", minimum=1, default=1)
         self.clip_obs = positive_env_number(env, "clipObservations", math.inf)
         self.clip_actions = positive_env_number(env, "clipActions", math.inf)
-        self.history_specs = parse_history(env)
-        self.obs_history: ObsHistory | None = None
-        self.state_history: ObsHistory | None = None
-        # Image observation (image_terms(): the "camera" group), rendered every renderInterval policy steps.
-        self.images: ImageGroup | None = None
-        self.image_stack: ImageStack | None = None  # the "camera" group: newest frame and env.history.camera
+        history = parse_history(env)
         self.render_interval = require_int(env, "renderInterval", minimum=1, default=1)
-
-        self.obs_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_observations,), dtype=np.float32)
-        self.state_space = gym.spaces.Box(-np.inf, np.inf, shape=(self.num_states,), dtype=np.float32)
         self.act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
 
-        self.control_steps = 0
         sim_cfg = config.get("sim", {})
         check_sim_keys(sim_cfg)
         warn_unused_ige_keys(env)
@@ -133,6 +102,9 @@ class VecTask(ObservationGroups):
         self.viewer = None
         self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
         self.set_viewer()
+        self.observations = Observations(
+            type(self).__name__, self.num_envs, self.device, self.rl_device, num_obs, num_states, self.clip_obs,
+            history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
         self.allocate_buffers()
         # Warp's kernels have been compiling in the background since create_sim: wait for them now, or, with a compiled
         # step, at the first step, while the step compiles (StepExecution.run).
@@ -140,10 +112,7 @@ class VecTask(ObservationGroups):
             self.sim.load_kernels()
         self.obs_dict: dict[str, torch.Tensor] = {}
         self.rewards: RewardTerms | None = None  # a task that sums named terms sets it (tasks/base/rewards.py)
-        self.obs_layout: ObsLayout | None = None
-        self.state_layout: ObsLayout | None = None
-        self._layouts_built = False
-        if not self.declares_layout:  # sizes from the YAML: known now (a layout waits for the task's own __init__)
+        if not declares_layout:  # sizes from the YAML: known now (a layout waits for the task's own __init__)
             self.build_observation_layouts()
 
     # --------------------------------------------------------------- building
@@ -191,17 +160,12 @@ class VecTask(ObservationGroups):
 
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
-        self.obs_buf = torch.zeros((n, self.num_observations), device=dev, dtype=torch.float)
-        self.states_buf = torch.zeros((n, self.num_states), device=dev, dtype=torch.float)
         self.rew_buf = torch.zeros(n, device=dev, dtype=torch.float)
         self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
         self.timeout_buf = torch.zeros(n, device=dev, dtype=torch.long)
         self.progress_buf = torch.zeros(n, device=dev, dtype=torch.long)
         self.extras: dict[str, Any] = {}
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
-        # Step outputs live in fixed buffers so that a captured step graph can write them.
-        self._obs_out = torch.zeros_like(self.obs_buf)
-        self._states_out = torch.zeros_like(self.states_buf)
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
         self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
@@ -210,8 +174,10 @@ class VecTask(ObservationGroups):
         self._shared_sequence = type(self).post_physics_step is VecTask.post_physics_step
         self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
         self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
+        images = None if self.observations.images is None else self._observe_images
         self.execution = StepExecution(
-            type(self).__name__, self._before_physics, self.sim.simulate, self._after_physics, self.cfg.get("sim", {}),
+            type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics, self._sense,
+                                            images), self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
             action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
         )
@@ -229,9 +195,7 @@ class VecTask(ObservationGroups):
     # -------------------------------------------------------------- properties
     @property
     def observation_space(self) -> gym.Space:
-        if not self._layouts_built:
-            self.build_observation_layouts()
-        return self.obs_space
+        return self._built_observations().obs_space
 
     @property
     def action_space(self) -> gym.Space:
@@ -247,13 +211,78 @@ class VecTask(ObservationGroups):
 
     @property
     def num_obs(self) -> int:
-        if not self._layouts_built:  # a declared layout gives the size once the task's __init__ has run
+        return self._built_observations().num_obs
+
+    @property
+    def num_states(self) -> int:
+        return self.observations.num_states
+
+    @property
+    def obs_buf(self) -> torch.Tensor:
+        """(num_envs, numObservations): the policy observation the task's terms (or the task) write each step."""
+        return self.observations.obs_buf
+
+    @property
+    def states_buf(self) -> torch.Tensor:
+        """(num_envs, numStates): the critic's privileged state."""
+        return self.observations.states_buf
+
+    @property
+    def control_steps(self) -> int:
+        """Env steps taken (the step execution's count, the run's one clock)."""
+        return self.execution.steps
+
+    def _built_observations(self) -> Observations:
+        if not self.observations.built:  # a declared layout gives the sizes once the task's __init__ has run
             self.build_observation_layouts()
-        return self.num_observations
+        return self.observations
+
+    # ------------------------------------------------------------ observations
+    def observation_terms(self) -> list[ObsTerm] | None:
+        """The policy observation as named terms (``ObsTerm(name, size, scale, noise, compute=...)``), in column
+        order; ``compute_observations`` builds ``obs_buf`` from them and ``numObservations`` is their total. None:
+        the task declares no layout, fills ``obs_buf`` itself and gives ``numObservations``."""
+        return None
+
+    def state_terms(self) -> list[ObsTerm] | None:
+        """The privileged critic state as named terms; ``numStates`` is their total (``numStates: 0`` in the YAML
+        turns the critic state off). None: no critic state, or one the task fills itself (``numStates`` > 0)."""
+        return None
+
+    def image_terms(self) -> list[ImageTerm] | None:
+        """The image observation (the "camera" group, (num_envs, C, H, W) uint8), read once the simulator is built:
+        ``camera_terms(self.sim.cameras)`` observes every ``env.cameras`` output, or ``ImageTerm``s pick some.
+        The cameras render after each step's resets (every ``env.renderInterval`` steps). None: no images."""
+        return None
+
+    def build_observation_layouts(self) -> None:
+        """Derive the layouts, sizes, buffers, spaces and history from the declared terms (a YAML size must agree).
+        A task whose terms depend on its own ``__init__`` calls it at the end of that, so that a wrong size fails at
+        construction; otherwise the first ``reset()`` (or ``num_obs``) does."""
+        obs = self.observations
+        obs.build(self.observation_terms(), self.state_terms() if obs.wants_state_terms else None)
+
+    def compute_observations(self) -> None:
+        """Fill ``obs_buf`` (and ``states_buf``) from the declared terms; a task without terms overrides this."""
+        if self.observations.obs_layout is None:
+            raise NotImplementedError(self.missing_hook_message("compute_observations"))
+        self.observations.compute()
+
+    def deployment_info(self) -> dict[str, Any]:
+        """What a runtime needs to feed an exported policy and apply its actions (``learning/export.py`` adds the
+        versions). Tasks with joints add their joint names, default pose, action scale and PD gains."""
+        return {"task": type(self).__name__, "control_dt": self.control_dt, "physics_dt": self.dt,
+                "decimation": self.control_freq_inv, "num_actions": self.num_actions,
+                "clip_actions": self.clip_actions if math.isfinite(self.clip_actions) else None,
+                **self._built_observations().describe()}
+
+    def get_state(self) -> torch.Tensor:
+        """The critic's input as the last step returned it (stacked when ``env.history.critic`` is set)."""
+        return self.observations.get_state()
 
     # ------------------------------------------------------------------ hooks
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        raise NotImplementedError(_hook_message(type(self), "pre_physics_step"))
+        raise NotImplementedError(hook_message(type(self), "pre_physics_step"))
 
     def post_physics_step(self) -> None:
         """The after-physics sequence every task shares; tasks fill its terms (module docstring), not the order."""
@@ -288,7 +317,7 @@ class VecTask(ObservationGroups):
         return torch.zeros_like(self.nonfinite_buf)
 
     def compute_reward(self) -> None:
-        raise NotImplementedError(_hook_message(type(self), "compute_reward"))
+        raise NotImplementedError(hook_message(type(self), "compute_reward"))
 
     def reset_envs(self, env_ids: torch.Tensor) -> None:
         """Reset the selected envs: the randomisation layer draws their new model values first (so the task's
@@ -315,33 +344,12 @@ class VecTask(ObservationGroups):
         """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
 
     def missing_hook_message(self, name: str) -> str:
-        return _hook_message(type(self), name)
-
-    def _check_required_hooks(self) -> None:
-        supplied = {"compute_reward": type(self).post_physics_step is not VecTask.post_physics_step,
-                    "compute_observations": type(self).observation_terms is not VecTask.observation_terms}
-        missing = [name for name in REQUIRED_HOOKS if getattr(type(self), name) is getattr(VecTask, name)
-                   and not supplied.get(name, False)]
-        if missing:
-            raise NotImplementedError("; ".join(_hook_message(type(self), name) for name in missing))
+        return hook_message(type(self), name)
 
     def check_action_size(self) -> None:
-        """``env.numActions`` must equal the model's actuator count (``ctrl`` columns), checked at construction.
-
-        A task whose actions do not map one to one onto actuators overrides this with its own check.
-        """
-        nu = self.sim.num_actuators
-        if nu == 0:
-            raise ConfigError(
-                f"{type(self).__name__}: env.numActions={self.num_actions} but the model has no actuators: give the "
-                "asset's joints a drive (env.control.driveMode / defaultDriveMode) or use an MJCF with <actuator>"
-            )
-        if nu != self.num_actions:
-            listing = [f"{a} -> {j}" for a, j in zip(self.sim.actuator_names, self.sim.actuator_joints)]
-            raise ConfigError(
-                f"{type(self).__name__}: env.numActions={self.num_actions} but the model has {nu} actuators "
-                f"(ctrl columns, name -> joint: {listing}); set env.numActions: {nu}, or change the drives"
-            )
+        """``env.numActions`` must equal the model's actuator count, checked at construction. A task whose actions
+        do not map one to one onto actuators overrides this with its own check."""
+        check_actuator_count(type(self).__name__, self.num_actions, self.sim)
 
     def longest_episode(self) -> int:
         """The most policy steps an episode can last: test mode steps this long (plus 2) before it stops waiting.
@@ -365,22 +373,14 @@ class VecTask(ObservationGroups):
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
         with self._step_extras():
-            self.execution.run(actions)  # pre-physics, physics, post-physics: eager, compiled or captured
-        self.control_steps += 1
+            self.execution.run(actions)  # the step's phases: eager, compiled or captured
 
         # The learner bootstraps the value of the episodes in "time_outs": time-outs and successes.
         self.extras["time_outs"] = (self.timeout_buf | self.success_buf).to(self.rl_device)
         self.extras["successes"] = self.success_buf.to(self.rl_device)
         self.extras["nonfinite_resets"] = self.nonfinite_buf
         self.extras["nonfinite_inputs"] = self.nonfinite_inputs_buf
-        # The next step rewrites the output buffers in place while the learner still holds this observation.
-        obs = self._obs_out if self.obs_history is None else self.obs_history.out
-        self.obs_dict["obs"] = obs.to(self.rl_device, copy=True)
-        if self.num_states > 0:
-            states = self._states_out if self.state_history is None else self.state_history.out
-            self.obs_dict["states"] = states.to(self.rl_device, copy=True)
-        if self.images is not None:  # no copy: the buffer this step wrote stays as it is for one more step
-            self.obs_dict["camera"] = self.image_stack.newest(self.execution.steps).to(self.rl_device)
+        self.observations.step_outputs(self.obs_dict, self.execution.steps)
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
@@ -435,31 +435,21 @@ class VecTask(ObservationGroups):
         # The learner's last line of defence: a NaN or inf that escaped the blow-up reset (a term dividing by a zero
         # distance, a quantity the reset does not refresh) would make one sample's loss NaN and, through one Adam
         # step, every weight. Such values become 0 and their worlds are counted (extras["nonfinite_inputs"]).
-        bad = ~torch.isfinite(self.rew_buf) | ~torch.isfinite(self.obs_buf).all(dim=-1)
+        bad = ~torch.isfinite(self.rew_buf)
         torch.nan_to_num(self.rew_buf, nan=0.0, posinf=0.0, neginf=0.0, out=self.rew_buf)
-        torch.clamp(torch.nan_to_num(self.obs_buf, nan=0.0, posinf=0.0, neginf=0.0), -self.clip_obs, self.clip_obs,
-                    out=self._obs_out)
-        if self.num_states > 0:
-            bad |= ~torch.isfinite(self.states_buf).all(dim=-1)
-            torch.clamp(torch.nan_to_num(self.states_buf, nan=0.0, posinf=0.0, neginf=0.0), -self.clip_obs,
-                        self.clip_obs, out=self._states_out)
+        bad |= self.observations.finish_step(self.reset_buf != 0)  # an env reset in this step starts its history
         self.nonfinite_inputs_buf.copy_(bad)
         self.nonfinite_inputs_count += bad.sum()
-        # env.history: an env reset in this step returned its new episode's first frame (reset_buf set).
-        if self.obs_history is not None:
-            self.obs_history.push(self._obs_out, self.reset_buf != 0)
-        if self.state_history is not None:
-            self.state_history.push(self._states_out, self.reset_buf != 0)
 
-    def _render_cameras(self) -> None:
-        """After the step's resets: draw the cameras (Warp, one graph on CUDA), every ``env.renderInterval`` steps
-        (a host counter: no sync). Between renders the images stay those of the last one."""
-        if self.control_steps % self.render_interval == 0:
+    def _sense(self, step: int) -> None:
+        """The sense phase, after the step's resets (and after a reset): the sensors show the state the observation
+        describes. The cameras render (Warp, one graph on CUDA) every ``env.renderInterval`` steps (a host counter:
+        no sync); between renders their images stay those of the last one."""
+        if step % self.render_interval == 0:
             self.sim.render_cameras()
 
-    def _observe_step_images(self, step: int) -> None:
-        """The "camera" group of env step ``step`` (torch; captured as a graph per stack buffer on CUDA)."""
-        self.image_stack.push(self.reset_buf != 0, step)
+    def _observe_images(self, step: int) -> None:
+        self.observations.observe_images(self.reset_buf != 0, step)
 
     @property
     def step_execution(self) -> str:
@@ -471,12 +461,11 @@ class VecTask(ObservationGroups):
 
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
-        if not self._layouts_built:
-            self.build_observation_layouts()
+        self._built_observations()
         self.reset_envs(self._all_envs)
-        self._compute_checked_observations()
+        self.observations.compute_checked(self.compute_observations)
         self.randomizer.observations(self.obs_buf)
-        return self._clamped_obs_dict(self._all_envs)
+        return self._reset_outputs(self._all_envs)
 
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
@@ -484,7 +473,13 @@ class VecTask(ObservationGroups):
         self.reset_envs(done)
         self.compute_observations()
         self.randomizer.observations(self.obs_buf)
-        return self._clamped_obs_dict(done), done.nonzero(as_tuple=False).flatten()
+        return self._reset_outputs(done), done.nonzero(as_tuple=False).flatten()
+
+    def _reset_outputs(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The observations after a reset, through the step's own sense phase; ``new_episode`` envs forget their
+        past frames."""
+        self._sense(self.execution.steps)
+        return self.observations.reset_outputs(self.obs_dict, new_episode, self.execution.steps)
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
         # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
@@ -527,6 +522,3 @@ class VecTask(ObservationGroups):
         """Drop every force of ``apply_body_forces``, one-step and persistent."""
         self.sim.clear_body_forces()
 
-
-def _hook_message(cls: type, name: str) -> str:
-    return f"{cls.__name__} must implement {name}(): {REQUIRED_HOOKS[name]}"
