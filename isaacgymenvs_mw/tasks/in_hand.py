@@ -245,7 +245,8 @@ class InHandTask(VecTask):
 
     def _terms_of(self, kind: str) -> list[ObsTerm]:
         """The observation terms of ``kind`` (one of ``observation_types``), in the task's order."""
-        raise NotImplementedError(self.missing_hook_message("_terms_of"))
+        raise NotImplementedError(f"{type(self).__name__} must implement _terms_of(kind): the observation terms of "
+                                  f"each of its observation types {list(self.observation_types)}")
 
     def _joint_terms(self, kind: str) -> list[ObsTerm]:
         """IGE's hand-joint block: positions over each range, velocities unless ``full_no_vel``, forces in
