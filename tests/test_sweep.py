@@ -48,6 +48,9 @@ def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_m
     assert metric_key(history, "auto") == "Episode/success"
     assert metric_key([{"mean_episode_reward": 1.0}], "auto") == "mean_episode_reward"
     assert metric_key(history, "success") == "Episode/success"
+    plain = [{"time_s": 1.0, "timeout_fraction": 0.5, "mean_episode_length": 10.0}]
+    assert metric_key(plain, "timeout_fraction") == "timeout_fraction"  # a history key as it is
+    assert metric_key(plain, "success") == "Episode/success"  # a declared metric's short name, even when absent
 
 
 def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(tmp_path):

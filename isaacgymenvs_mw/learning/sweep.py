@@ -246,8 +246,11 @@ def _copy_output(job: Job, mode: str = "w") -> None:
 
 # ---------------------------------------------------------------------------------------------------- aggregate
 def metric_key(history: list[dict], metric: str) -> str:
-    """The history key of ``metric`` (``auto``: the task's first declared metric, else the episode reward)."""
+    """The history key of ``metric`` (``auto``: the task's first declared metric, else the episode reward): a key of
+    the history as it is (``timeout_fraction``), else a declared metric's short name (``success``)."""
     if metric != "auto":
+        if any(metric in record for record in history):
+            return metric
         return metric if metric.startswith(METRIC_PREFIX) or metric.startswith("mean_") else METRIC_PREFIX + metric
     for record in history:
         for key in record:
@@ -292,7 +295,8 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
     histories = [r for s in summaries if s for r in s.get("history", [])]
     key = metric_key(histories, metric)
     if histories and not any(r.get(key) is not None for r in histories):
-        known = sorted({k for r in histories for k in r if k.startswith(METRIC_PREFIX) or k.startswith("mean_")})
+        known = sorted({k for r in histories for k in r
+                        if k.startswith(METRIC_PREFIX) or k.startswith("mean_") or k == "timeout_fraction"})
         print(f"[sweep] sweep_metric={metric}: no job reported {key}; its runs report {', '.join(known)}",
               file=sys.stderr, flush=True)
     rows = []

@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# On a machine with 4 GPUs: the time to a solved task at one total number of envs split over 1, 2 and 4 GPUs of one
+# host (torchrun, one simulator per GPU, the total envs divided among them).
+#   go1      Go1, 4096 envs in total, 400 iterations, a checkpoint every 25 iterations; afterwards every checkpoint
+#            is evaluated in test mode (1024 episodes, the four GPUs side by side). Solved: timeout_fraction >= 0.97
+#            and lin_vel_tracking_error <= 0.25 m/s.
+#   allegro  AllegroHand, 8192 envs in total, BUDGET_S seconds of training (default 1500). Solved at 5 and at 10:
+#            IGE's consecutive_successes, the task's own running metric, read from summary.json's history.
+# The time is from process start: start-up (summary wall time minus training time) plus the training time at the
+# first checkpoint or iteration that meets the criterion.
+# Usage: bash benchmarks/gpu_time_to_solve.sh go1|allegro OUTDIR [GPU counts, default 1,2,4]
+set -uo pipefail
+name=$1; out=$2; counts=${3:-1,2,4}
+mkdir -p "$out"
+export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVLS=1  # NVLink multicast off
+case "$name" in
+  go1) task=Go1; total=4096; train_args=(max_iterations=400 train.runner.save_interval=25) ;;
+  allegro) task=AllegroHand; total=8192; train_args=(max_iterations=100000) ;;
+  *) echo "unknown run '$name': go1 or allegro"; exit 2 ;;
+esac
+for k in ${counts//,/ }; do
+  run="$out/$task.g$k"
+  launch=(python3 train.py)
+  [ "$k" -gt 1 ] && launch=(torchrun --standalone --nnodes=1 --nproc_per_node="$k" train.py multi_gpu=True)
+  timeout --preserve-status -s TERM "${BUDGET_S:-1500}" "${launch[@]}" task=$task headless=True \
+    num_envs=$((total / k)) runs_dir="$run" "${train_args[@]}" > "$run.log" 2>&1
+  echo "$task on $k GPU(s): exit $?" >> "$out/exits.txt"
+  if [ "$name" = go1 ]; then  # every checkpoint in test mode, four at once
+    i=0
+    for ckpt in "$run"/"$task"/*/model_*.pt; do
+      CUDA_VISIBLE_DEVICES=$((i % 4)) python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
+        num_envs=1024 > "${ckpt%.pt}.eval.log" 2>&1 &
+      i=$((i + 1)); [ $((i % 4)) = 0 ] && wait
+    done
+    wait
+  fi
+done
+python3 - "$out" "$task" "$name" "$counts" <<'PY'
+import glob, json, os, re, sys
+out, task, name, counts = sys.argv[1:5]
+METRIC = "Episode/consecutive_successes"  # the task's running metric in summary.json's history
+for k in counts.split(","):
+    runs = sorted(glob.glob(f"{out}/{task}.g{k}/{task}/*/summary.json"))
+    if not runs:
+        print(json.dumps({"task": task, "gpus": int(k), "error": "no summary.json"}))
+        continue
+    s = json.load(open(runs[-1]))
+    start_up = s["wall_time_s"] - s["train_time_s"]
+    at = {h["iteration"]: h for h in s["history"]}
+    row = {"task": task, "gpus": s["world_size"], "envs_in_total": s["num_envs"] * s["world_size"],
+           "start_up_s": round(start_up, 1), "env_steps_per_s": round(s["env_steps_per_s"])}
+    if name == "go1":
+        solved = None
+        for ev in sorted(glob.glob(os.path.join(os.path.dirname(runs[-1]), "model_*.eval.log")),
+                         key=lambda p: int(re.search(r"model_(\d+)", p).group(1))):
+            it = int(re.search(r"model_(\d+)", ev).group(1))
+            line = [x for x in open(ev) if x.startswith("[eval] {")]
+            if not line or it not in at:
+                continue
+            e = json.loads(line[-1][len("[eval] "):])
+            if e["timeout_fraction"] >= 0.97 and e["lin_vel_tracking_error"] <= 0.25:
+                solved = {"iteration": it, "seconds_from_start": round(start_up + at[it]["time_s"], 1),
+                          "timeout_fraction": e["timeout_fraction"], "tracking_error": e["lin_vel_tracking_error"]}
+                break
+        row["solved"] = solved
+    else:
+        for level in (5, 10):
+            hit = next((h for h in s["history"] if h.get(METRIC, 0) >= level), None)
+            row[f"consecutive_successes_{level}_s"] = None if hit is None else round(start_up + hit["time_s"], 1)
+        row["final_consecutive_successes"] = s["history"][-1].get(METRIC)
+    print(json.dumps(row))
+PY
