@@ -106,8 +106,10 @@ def test_a_missing_sensor_is_one_line_naming_the_key_the_value_and_the_sensors(t
 
 @pytest.mark.parametrize("declared, message", [
     ({"imu": {"type": "imus", "site": "wrist"}}, r"^env\.sensors\.imu\.type='imus' is invalid: give one of \['imu', "),
-    ({"imu": {"type": "imu"}}, r"^env\.sensors\.imu: give exactly one site for a sensor of type imu "),
-    ({"imu": {"type": "imu", "body": "lower"}}, r"^env\.sensors\.imu: give exactly one site for a sensor of type "),
+    ({"imu": {"type": "imu"}}, r"^env\.sensors\.imu: give exactly one site or body for a sensor of type imu "),
+    ({"imu": {"type": "imu", "site": "wrist", "body": "lower"}},
+     r"^env\.sensors\.imu: give exactly one site or body for a sensor of type "),
+    ({"imu": {"type": "imu", "body": "hand"}}, r"^env\.sensors\.imu\.body='hand' is not a body of the model; "),
     ({"imu": {"type": "imu", "site": "wrist", "noise": 0.1}}, r"^env\.sensors\.imu: unknown key\(s\) \['noise'\]"),
     ({"imu": {"type": "imu", "site": "hand"}},
      r"^env\.sensors\.imu\.site='hand' is not a site of the model; sites: \['elbow_site', 'wrist'\]$"),

@@ -23,16 +23,15 @@ from dataclasses import replace
 import torch
 
 from isaacgymenvs_mw.sim import (
+    HeightScan,
     ModelRequest,
     generate_terrain,
     ground_geoms,
-    heightfield_grid,
     match_joint_numbers,
     match_joint_values,
     parse_terrain_config,
 )
 from isaacgymenvs_mw.sim import match_body_names as _select
-from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
@@ -67,11 +66,15 @@ class LeggedTask(VecTask):
                 if body not in sensed:
                     sensed.append(body)
         request.contact_bodies = sensed
+        self._sensed_bodies = sensed  # the rows of the contact_forces sensor
         if self.terrain is not None:
             if request.ground is None:
                 raise ConfigError("env.terrain.type: heightfield replaces the ground plane and takes its friction: set "
                                  "env.plane.enabled: True (env.plane.friction is the terrain's friction)")
             request.terrain = self.terrain
+            t = self.terrain_settings
+            self.height_scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
+            request.sensors = (*request.sensors, self.height_scan)
         return request
 
     # ----------------------------------------------------------------- terrain
@@ -108,8 +111,7 @@ class LeggedTask(VecTask):
     def _init_terrain_state(self) -> None:
         """Per-env cells, curriculum levels, the device height map and the height-scan points."""
         n, dev, t, cfg = self.num_envs, self.device, self.terrain_settings, self.terrain.config
-        grid = heightfield_grid(self.sim.mj_model)  # what MuJoCo collides with, read back from the model
-        self.height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], dev)
+        self.height_map = self.height_scan.height_map  # what MuJoCo collides with, read back from the model
         self.terrain_origins = torch.tensor(self.terrain.origins, device=dev, dtype=torch.float)
         self.num_levels = cfg.numLevels
         self.cell_length = cfg.mapLength
@@ -122,20 +124,9 @@ class LeggedTask(VecTask):
         self.spawn_jitter = float(t["spawnJitter"])
         self.measure_heights = bool(t["measureHeights"])
         self.scan_offset = float(t["scanHeightOffset"])
-        xs = torch.linspace(-0.5, 0.5, int(t["scanPointsX"]), device=dev) * float(t["scanLength"])
-        ys = torch.linspace(-0.5, 0.5, int(t["scanPointsY"]), device=dev) * float(t["scanWidth"])
-        gx, gy = torch.meshgrid(xs, ys, indexing="ij")
-        self.scan_points = torch.stack((gx.flatten(), gy.flatten()), dim=1)  # (P, 2), base yaw frame
-        self.measured_heights = torch.zeros(n, self.scan_points.shape[0], device=dev)
+        # Terrain heights under the scan points, refreshed by the step's sense phase (sim/sensors.py, HeightScan).
+        self.measured_heights = self.sim.sensor("height_scan")
         self._curriculum_started = False  # the first (full) reset places envs; later resets move them
-
-    def scan_heights(self) -> torch.Tensor:
-        """Terrain heights (m, world z) under the scan points around each base, rotated by the base's yaw."""
-        yaw = self.base_yaw()
-        c, s = torch.cos(yaw).unsqueeze(1), torch.sin(yaw).unsqueeze(1)
-        px, py = self.scan_points[:, 0], self.scan_points[:, 1]
-        pos = self.sim.root_pos
-        return self.height_map(pos[:, 0:1] + c * px - s * py, pos[:, 1:2] + s * px + c * py)
 
     def _update_terrain_curriculum(self, mask: torch.Tensor) -> None:
         """legged_gym's rule for the resetting envs: up past half a cell, down under half the commanded distance,
@@ -179,9 +170,8 @@ class LeggedTask(VecTask):
                                        "env.asset.penalizeContactBodies")
         self.base_body = self.sim.body_id(asset.get("baseBody", names[1]))
         self.ground_geom = ground_geoms(self.sim.mj_model)[0]  # the parts of a terrain share one friction
-        sensed = list(self.sim.contact_sensors)
-        self._contact_adr = self.sim.contact_columns(sensed)
-        position = {b: i for i, b in enumerate(sensed)}
+        self._contact_forces = self.sim.sensor("contact_forces")  # (N, sensed bodies, 3), world frame
+        position = {b: i for i, b in enumerate(self._sensed_bodies)}
 
         def rows(bodies: list[str]) -> torch.Tensor:
             return torch.tensor([position[b] for b in bodies], device=self.device, dtype=torch.long)
@@ -228,7 +218,7 @@ class LeggedTask(VecTask):
         self.base_lin_vel = torch.zeros(n, 3, device=dev)
         self.base_ang_vel = torch.zeros(n, 3, device=dev)
         self.projected_gravity = torch.zeros(n, 3, device=dev)
-        self.contact_force_norm = torch.zeros(n, self._contact_adr.shape[0], device=dev)
+        self.contact_force_norm = torch.zeros(n, self._contact_forces.shape[1], device=dev)
         self.torques = self.sim.qfrc_actuator[:, 6:]
         # The critic's privileged view of the randomised world: the ground's friction and the base's added mass,
         # read from the (possibly per-world) model fields the randomisation layer writes.
@@ -279,12 +269,11 @@ class LeggedTask(VecTask):
         ] + ([self._height_scan_term()] if self.terrain is not None and self.measure_heights else [])
 
     def _height_scan_term(self) -> ObsTerm:
-        return ObsTerm("height_scan", self.scan_points.shape[0], self.obs_scales["heightMeasurements"],
+        return ObsTerm("height_scan", self.measured_heights.shape[1], self.obs_scales["heightMeasurements"],
                        compute=self._height_scan)
 
     def _height_scan(self) -> torch.Tensor:
         """Base height above each scan point minus scanHeightOffset, clipped to ±1 m (legged_gym's measurement)."""
-        self.measured_heights[:] = self.scan_heights()
         return (self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights).clamp(-1.0, 1.0)
 
     def state_terms(self) -> list[ObsTerm]:
@@ -341,8 +330,7 @@ class LeggedTask(VecTask):
         self.base_lin_vel[:] = quat_rotate_inverse(q, self.sim.root_lin_vel)
         self.base_ang_vel[:] = self.sim.root_ang_vel
         self.projected_gravity[:] = quat_rotate_inverse(q, self.gravity_vec)
-        forces = self.sim.sensordata[:, self._contact_adr]  # (N, bodies, 3)
-        self.contact_force_norm[:] = torch.norm(forces, dim=-1)
+        self.contact_force_norm[:] = torch.norm(self._contact_forces, dim=-1)
 
     def check_termination(self) -> torch.Tensor:
         hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)
