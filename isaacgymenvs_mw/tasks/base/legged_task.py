@@ -35,6 +35,7 @@ from isaacgymenvs_mw.sim import match_body_names as _select
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
@@ -49,6 +50,7 @@ class LeggedTask(VecTask):
         self._init_joint_settings(env)
         self._init_bodies(env["asset"])
         self._init_buffers(env)
+        self._init_sensor_terms(env.get("observeSensors"))
         self._init_rewards(env["rewards"])
         if self.terrain is not None:
             self._init_terrain_state()
@@ -226,6 +228,19 @@ class LeggedTask(VecTask):
         self._base_mass = self.sim.model_field("body_mass")[:, self.base_body:self.base_body + 1]
         self._nominal_base_mass = float(self.sim.mj_model.body_mass[self.base_body])
 
+    def _init_sensor_terms(self, cfg) -> None:
+        """``env.observeSensors``: {sensor name: scale}. Each sensor of the model (an ``env.sensors`` entry such as
+        an IMU, an MJCF sensor, ``contact_forces``) becomes a policy observation term of its name, after the others:
+        its view's values, flattened, times the scale. Empty (the default): the observation is unchanged."""
+        key = "env.observeSensors"
+        if cfg is not None and not hasattr(cfg, "items"):
+            raise ConfigError(f"{key}={cfg!r} is invalid: give a mapping {{sensor name: scale}}, e.g. {{imu: 1.0}}")
+        self._sensor_terms = []
+        for name, scale in (cfg or {}).items():
+            view = self.sim.sensor(str(name), key=f"{key}.{name}")
+            self._sensor_terms.append(ObsTerm(str(name), int(view[0].numel()), real_number(scale, f"{key}.{name}"),
+                                              compute=lambda view=view: view.flatten(1)))
+
     def _init_rewards(self, rew: dict) -> None:
         scales = dict(rew["scales"])
         self.tracking_sigma = float(rew.get("trackingSigma", 0.25))
@@ -256,6 +271,7 @@ class LeggedTask(VecTask):
     def observation_terms(self) -> list[ObsTerm]:
         # Sensor noise per term comes from task.randomization_params.observations.terms (randomisation layer).
         s, nj = self.obs_scales, self.num_actions
+        scan = [self._height_scan_term()] if self.terrain is not None and self.measure_heights else []
         return [
             ObsTerm("base_lin_vel", 3, s["linVel"], compute=lambda: self.base_lin_vel),  # body frame, m/s
             ObsTerm("base_ang_vel", 3, s["angVel"], compute=lambda: self.base_ang_vel),  # body frame, rad/s
@@ -266,7 +282,7 @@ class LeggedTask(VecTask):
             ObsTerm("dof_vel", nj, s["dofVel"], compute=lambda: self.sim.dof_vel),
             # the action the drives received (delayed, if delayed)
             ObsTerm("actions", nj, compute=lambda: self.actions),
-        ] + ([self._height_scan_term()] if self.terrain is not None and self.measure_heights else [])
+        ] + scan + self._sensor_terms
 
     def _height_scan_term(self) -> ObsTerm:
         return ObsTerm("height_scan", self.measured_heights.shape[1], self.obs_scales["heightMeasurements"],
