@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Simulator, SolverOptions, build_model, sensor_specs
+from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Sensor, Simulator, SolverOptions, build_model, sensor_specs
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.go1 import Go1
+from isaacgymenvs_mw.utils.config import compose_config, to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # A two-link arm hanging from the world, driven at both joints, with MJCF force / torque sensors at the elbow (the
@@ -216,3 +219,49 @@ def test_observed_sensors_are_checked_when_the_task_is_built():
         with pytest.raises(ConfigError, match=message):
             isaacgymenvs_mw.make("Go1", num_envs=1, sim_device="cpu", rl_device="cpu",
                                  overrides=[*IMU_OVERRIDES[::2], f"++task.env.observeSensors={observed}"])
+
+
+# ------------------------------------------------------------------------------------- a sensor of the user's own
+class BaseSpeed(Sensor):
+    """docs/porting.md's computed sensor: the base's horizontal speed, refreshed by the sense phase."""
+
+    name = "base_speed"
+
+    def bind(self, sim):
+        self._vel, self._out = sim.root_lin_vel, torch.zeros(sim.num_worlds, 1, device=sim.device)
+        return self._out
+
+    def sense(self):
+        self._out[:] = self._vel[:, :2].norm(dim=1, keepdim=True)
+
+
+class SpeedGo1(Go1):
+    def __init__(self, cfg, *args, **kwargs):
+        super().__init__(cfg, *args, **kwargs)
+        self.speed = self.sim.sensor("base_speed")
+
+    def model_request(self):
+        request = super().model_request()
+        request.sensors = (*request.sensors, BaseSpeed())
+        return request
+
+    def observation_terms(self):
+        return super().observation_terms() + [ObsTerm("base_speed", 1, 0.5, compute=lambda: self.speed)]
+
+
+def test_a_computed_sensor_is_refreshed_by_the_sense_phase_after_the_resets():
+    cfg = to_dict(compose_config(["task=Go1", f"num_envs={WORLDS}", "task.task.randomize=False",
+                                  "task.env.episodeLength_s=0.1"]).task)  # 5 steps: resets happen in the step
+    task = SpeedGo1(cfg, rl_device="cpu", sim_device="cpu", graphics_device_id=0, headless=True)
+    speed = task.sim.sensor("base_speed")
+    assert speed is task.speed and speed.shape == (WORLDS, 1) and task.obs_layout.slices["base_speed"] == slice(48, 49)
+    obs = task.reset()["obs"]
+    seen, ended = [], 0
+    for _ in range(8):
+        expected = task.sim.root_lin_vel[:, :2].norm(dim=1, keepdim=True)  # the state after the step's resets
+        torch.testing.assert_close(speed, expected, rtol=0, atol=0)
+        torch.testing.assert_close(obs[:, 48:49], expected * 0.5, rtol=0, atol=0)
+        seen.append(speed.clone())
+        obs_dict, _, reset, _ = task.step(torch.rand(WORLDS, 12) * 2 - 1)
+        obs, ended = obs_dict["obs"], ended + int(reset.sum())
+    assert ended > 0 and len({tuple(s.flatten().tolist()) for s in seen}) == len(seen)  # new values every step
