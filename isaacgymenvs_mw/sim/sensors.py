@@ -164,7 +164,6 @@ def sensor_specs(cfg: Mapping | None) -> tuple[SensorSpec, ...]:
     return tuple(out)
 
 
-
 class ContactForces(Sensor):
     """The net contact force on each of ``bodies``: MuJoCo ``contact`` sensors ``contact_<body>`` (net force, world
     frame: the force the body exerts on what it touches), viewed as ``contact_forces``, (num_worlds, bodies, 3).
@@ -202,6 +201,9 @@ class HeightScan(Sensor):
         self.height_map: HeightMap | None = None  # made by bind, from the compiled model
 
     def bind(self, sim: Simulator) -> torch.Tensor:
+        if not sim.floating_base:
+            raise ConfigError("a height scan follows a floating base, but the model's root is fixed "
+                              "(env.asset.fixBaseLink)")
         grid = heightfield_grid(sim.mj_model)
         self.height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], sim.device)
         xs = torch.linspace(-0.5, 0.5, self.points_x, device=sim.device) * self.length

@@ -300,8 +300,8 @@ class Simulator:
     def sensor(self, name: str, key: str = "sensor") -> torch.Tensor:
         """(num_worlds, ...) torch view of the sensor ``name``: a MuJoCo sensor of the model (an MJCF ``<sensor>``
         or an ``env.sensors`` entry: a slice of ``sensordata``, rewritten in place by each physics step) or a bound
-        ``Sensor`` (``contact_forces``, ``height_scan``: refreshed by ``sense()``); no copy (sim/sensors.py says
-        which state each describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for
+        ``Sensor``'s (``contact_forces``, a slice too; ``height_scan``, refreshed by ``sense()``); no copy
+        (sim/sensors.py says which state each describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for
         the error when there is none of that name."""
         return self.sensors.view(name, key)
 
