@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Simulator, SolverOptions, build_model, sensor_specs
+from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Sensor, Simulator, SolverOptions, build_model, sensor_specs
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.go1 import Go1
+from isaacgymenvs_mw.utils.config import compose_config, to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # A two-link arm hanging from the world, driven at both joints, with MJCF force / torque sensors at the elbow (the
@@ -48,10 +51,13 @@ def build(tmp_path, declared=DECLARED) -> mujoco.MjModel:
     return build_model(request)
 
 
-def reference(model: mujoco.MjModel, qpos, qvel, ctrl, name: str) -> np.ndarray:
-    """MuJoCo C's value of sensor ``name`` (an imu: its two parts) at this state."""
+def reference(model: mujoco.MjModel, qpos, qvel, ctrl, name: str, warmstart=None) -> np.ndarray:
+    """MuJoCo C's value of sensor ``name`` (an imu: its two parts) at this state (``warmstart``: where the
+    constraint solver starts, as a Warp world's carried ``qacc_warmstart``)."""
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
+    if warmstart is not None:
+        data.qacc_warmstart[:] = warmstart
     mujoco.mj_forward(model, data)
     parts = [f"{name}_accelerometer", f"{name}_gyro"] if name == "imu" else [name]
     return np.concatenate([data.sensordata[model.sensor(p).adr[0]:][:model.sensor(p).dim[0]] for p in parts])
@@ -106,8 +112,10 @@ def test_a_missing_sensor_is_one_line_naming_the_key_the_value_and_the_sensors(t
 
 @pytest.mark.parametrize("declared, message", [
     ({"imu": {"type": "imus", "site": "wrist"}}, r"^env\.sensors\.imu\.type='imus' is invalid: give one of \['imu', "),
-    ({"imu": {"type": "imu"}}, r"^env\.sensors\.imu: give exactly one site for a sensor of type imu "),
-    ({"imu": {"type": "imu", "body": "lower"}}, r"^env\.sensors\.imu: give exactly one site for a sensor of type "),
+    ({"imu": {"type": "imu"}}, r"^env\.sensors\.imu: give exactly one site or body for a sensor of type imu "),
+    ({"imu": {"type": "imu", "site": "wrist", "body": "lower"}},
+     r"^env\.sensors\.imu: give exactly one site or body for a sensor of type "),
+    ({"imu": {"type": "imu", "body": "hand"}}, r"^env\.sensors\.imu\.body='hand' is not a body of the model; "),
     ({"imu": {"type": "imu", "site": "wrist", "noise": 0.1}}, r"^env\.sensors\.imu: unknown key\(s\) \['noise'\]"),
     ({"imu": {"type": "imu", "site": "hand"}},
      r"^env\.sensors\.imu\.site='hand' is not a site of the model; sites: \['elbow_site', 'wrist'\]$"),
@@ -119,3 +127,141 @@ def test_bad_sensor_declarations_are_one_line_naming_the_key(tmp_path, declared,
     with pytest.raises(ConfigError, match=message) as err:
         build(tmp_path, declared)
     assert "\n" not in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------------ the legged IMU
+# An IMU on Go1's base, declared and observed as a user would (cfg/legged/base.yaml: env.sensors, env.observeSensors);
+# randomisation off, so that every world runs the host model MuJoCo C is given.
+IMU_SCALE = 0.5
+IMU_OVERRIDES = ["++task.env.sensors={imu: {type: imu, body: trunk}}",
+                 f"++task.env.observeSensors={{imu: {IMU_SCALE}}}", "task.task.randomize=False"]
+
+
+@pytest.fixture(scope="module")
+def go1():
+    import isaacgymenvs_mw
+
+    return isaacgymenvs_mw.make("Go1", num_envs=WORLDS, sim_device="cpu", rl_device="cpu", seed=0,
+                                overrides=IMU_OVERRIDES)
+
+
+def test_legged_imu_equals_mujoco_c_in_the_air_and_on_the_ground(go1):
+    sim, gen = go1.sim, torch.Generator().manual_seed(5)
+    model = sim.mj_model
+    site = model.site("imu_site")
+    assert model.body(int(site.bodyid[0])).name == "trunk" and not site.pos.any()  # at the base's frame
+    everyone = torch.ones(WORLDS, dtype=torch.bool)
+    go1.reset()
+    for airborne in (True, False):
+        if airborne:  # high above the ground, turning and moving, legs driven: no contacts
+            sim.write_state(everyone, root_pos=torch.tensor([[0.0, 0.0, 2.0]]).repeat(WORLDS, 1),
+                            root_quat=torch.nn.functional.normalize(torch.rand(WORLDS, 4, generator=gen), dim=1),
+                            root_lin_vel=torch.rand(WORLDS, 3, generator=gen) * 2 - 1,
+                            root_ang_vel=torch.rand(WORLDS, 3, generator=gen) * 4 - 2,
+                            dof_pos=go1.default_dof_pos.repeat(WORLDS, 1),
+                            dof_vel=torch.rand(WORLDS, 12, generator=gen) * 4 - 2)
+        else:  # standing: reset, then 0.4 s of the default pose, which lands every world on its feet
+            go1.reset()
+            for _ in range(20):
+                go1.step(torch.zeros(WORLDS, 12))
+        sim.ctrl.copy_(go1.default_dof_pos + 0.2 * (torch.rand(WORLDS, 12, generator=gen) * 2 - 1))
+        state = [t.clone().double().numpy() for t in (sim.qpos, sim.qvel, sim.ctrl)]
+        # Both solve the contacts in a few Newton iterations: from the same start they agree.
+        warmstart = sim.save_state()["qacc_warmstart"].double().numpy()
+        # A step's sensors describe the start of its last physics step (of controlFrequencyInv); forward() computes
+        # them from this state, as mj_forward does.
+        sim.forward()
+        imu = sim.sensor("imu")
+        assert imu.shape == (WORLDS, 6)
+        for w in range(WORLDS):
+            expected = reference(model, state[0][w], state[1][w], state[2][w], "imu", warmstart[w])
+            np.testing.assert_allclose(imu[w].double().numpy(), expected, rtol=1e-4, atol=1e-4,
+                                       err_msg=f"world {w}, {'in the air' if airborne else 'standing'}")
+        # The gyro is the base's angular velocity in its own frame, which is MuJoCo's free-joint qvel[3:6].
+        np.testing.assert_allclose(imu[:, 3:].double().numpy(), state[1][:, 3:6], atol=1e-5)
+        feet = sim.contact_forces(go1.feet).norm(dim=-1).amax(dim=1)
+        if airborne:  # proper acceleration: a body in free fall reads far less than gravity
+            assert float(feet.max()) == 0.0 and float(imu[:, :3].norm(dim=1).max()) < 9.81 * 0.95
+        else:  # standing: the feet push the base up, and it reads that push along its up axis
+            assert float(feet.min()) > 1.0 and float(imu[:, 2].min()) > 0.0
+
+
+def test_contact_forces_sensor_is_a_view_of_the_contact_sensors(go1):
+    forces = go1.sim.sensor("contact_forces")
+    bodies = list(go1.sim.contact_sensors)
+    assert forces.shape == (WORLDS, len(bodies), 3)
+    assert forces.untyped_storage().data_ptr() == go1.sim.sensordata.untyped_storage().data_ptr()  # no copy
+    go1.reset()
+    go1.step(torch.zeros(WORLDS, 12))
+    assert float(forces.norm(dim=-1).max()) > 1.0  # the feet stand
+    torch.testing.assert_close(forces, go1.sim.contact_forces(bodies), rtol=0, atol=0)
+
+
+def test_legged_imu_observation_term_has_its_size_scale_and_values(go1):
+    layout = go1.observations.obs_layout
+    assert layout.names[-1] == "imu" and layout.slices["imu"] == slice(48, 54)
+    assert go1.num_obs == 54 and go1.num_states == 61  # the critic's noiseless policy part has it too
+    assert go1.observations.state_layout.slices["imu"] == slice(48, 54)
+    go1.reset()
+    for _ in range(3):
+        obs, *_ = go1.step(torch.rand(WORLDS, 12) * 2 - 1)
+    expected = (go1.sim.sensor("imu") * IMU_SCALE).clamp(-go1.clip_obs, go1.clip_obs)
+    torch.testing.assert_close(obs["obs"][:, 48:54], expected, rtol=0, atol=0)
+    torch.testing.assert_close(obs["states"][:, 48:54], expected, rtol=0, atol=0)
+
+
+def test_observed_sensors_are_checked_when_the_task_is_built():
+    import isaacgymenvs_mw
+
+    key = r"^task\.env\.observeSensors"
+    for observed, message in (("{gps: 1.0}", key + r"\.gps: 'gps' is not a sensor of the model; "),
+                              ("{imu: fast}", key + r"\.imu='fast' is invalid: give a finite number")):
+        with pytest.raises(ConfigError, match=message):
+            isaacgymenvs_mw.make("Go1", num_envs=1, sim_device="cpu", rl_device="cpu",
+                                 overrides=[*IMU_OVERRIDES[::2], f"++task.env.observeSensors={observed}"])
+
+
+# ------------------------------------------------------------------------------------- a sensor of the user's own
+class BaseSpeed(Sensor):
+    """docs/porting.md's computed sensor: the base's horizontal speed, refreshed by the sense phase."""
+
+    name = "base_speed"
+
+    def bind(self, sim):
+        self._vel, self._out = sim.root_lin_vel, torch.zeros(sim.num_worlds, 1, device=sim.device)
+        return self._out
+
+    def sense(self):
+        self._out[:] = self._vel[:, :2].norm(dim=1, keepdim=True)
+
+
+class SpeedGo1(Go1):
+    def __init__(self, cfg, *args, **kwargs):
+        super().__init__(cfg, *args, **kwargs)
+        self.speed = self.sim.sensor("base_speed")
+
+    def model_request(self):
+        request = super().model_request()
+        request.sensors = (*request.sensors, BaseSpeed())
+        return request
+
+    def observation_terms(self):
+        return super().observation_terms() + [ObsTerm("base_speed", 1, 0.5, compute=lambda: self.speed)]
+
+
+def test_a_computed_sensor_is_refreshed_by_the_sense_phase_after_the_resets():
+    cfg = to_dict(compose_config(["task=Go1", f"num_envs={WORLDS}", "task.task.randomize=False",
+                                  "task.env.episodeLength_s=0.1"]).task)  # 5 steps: resets happen in the step
+    task = SpeedGo1(cfg, rl_device="cpu", sim_device="cpu", graphics_device_id=0, headless=True)
+    speed = task.sim.sensor("base_speed")
+    assert speed is task.speed and speed.shape == (WORLDS, 1) and task.observations.obs_layout.slices["base_speed"] == slice(48, 49)
+    obs = task.reset()["obs"]
+    seen, ended = [], 0
+    for _ in range(8):
+        expected = task.sim.root_lin_vel[:, :2].norm(dim=1, keepdim=True)  # the state after the step's resets
+        torch.testing.assert_close(speed, expected, rtol=0, atol=0)
+        torch.testing.assert_close(obs[:, 48:49], expected * 0.5, rtol=0, atol=0)
+        seen.append(speed.clone())
+        obs_dict, _, reset, _ = task.step(torch.rand(WORLDS, 12) * 2 - 1)
+        obs, ended = obs_dict["obs"], ended + int(reset.sum())
+    assert ended > 0 and len({tuple(s.flatten().tolist()) for s in seen}) == len(seen)  # new values every step

@@ -172,6 +172,12 @@ def test_height_lookup_equals_mj_ray_on_the_compiled_model(task):
     np.testing.assert_allclose(ray_heights(m, grid_points), task.terrain.heights[ab[:, 0], ab[:, 1]], atol=2e-5)
 
 
+def sensed_heights(task) -> torch.Tensor:
+    """The height_scan sensor refreshed from the current state (the step's sense phase)."""
+    task.sim.sense()
+    return task.sim.sensor("height_scan")
+
+
 def test_height_scan_points_turn_with_the_base_and_match_mj_ray(task):
     yaw = np.linspace(-3.0, 3.0, NUM_ENVS)
     quat = np.stack([np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)], axis=1)
@@ -179,7 +185,7 @@ def test_height_scan_points_turn_with_the_base_and_match_mj_ray(task):
     mask = torch.ones(NUM_ENVS, dtype=torch.bool)
     task.sim.write_state(mask, root_pos=torch.tensor(pos, dtype=torch.float),
                          root_quat=torch.tensor(quat, dtype=torch.float))
-    scan = task.scan_heights().numpy()
+    scan = sensed_heights(task).numpy()
     assert scan.shape == (NUM_ENVS, 17 * 11)
     gx, gy = np.meshgrid(np.linspace(-0.8, 0.8, 17), np.linspace(-0.5, 0.5, 11), indexing="ij")
     local = np.stack([gx.ravel(), gy.ravel()], 1)
@@ -196,7 +202,7 @@ def test_observation_and_state_sizes_follow_the_scan(task):
     obs = blind.reset()
     assert obs["obs"].shape == (NUM_ENVS, 48) and obs["states"].shape == (NUM_ENVS, 55 + 187)
     # The critic's last 187 values are the clipped, scaled base height above each scan point minus 0.5 m.
-    expected = (blind.sim.root_pos[:, 2:3] - 0.5 - blind.scan_heights()).clamp(-1, 1) * 5.0
+    expected = (blind.sim.root_pos[:, 2:3] - 0.5 - sensed_heights(blind)).clamp(-1, 1) * 5.0
     np.testing.assert_allclose(obs["states"][:, 55:].numpy(), expected.numpy(), atol=1e-5)
     with pytest.raises(ValueError, match="numObservations=235, but the task observes 48 values"):
         make(overrides=[T + "measureHeights=False", "+task.env.numObservations=235"])  # 235 declared, 48 measured

@@ -54,7 +54,14 @@ from isaacgymenvs_mw.sim.request import (  # noqa: E402
     torque_speed_limits,
 )
 from isaacgymenvs_mw.sim.scene import AssetView  # noqa: E402
-from isaacgymenvs_mw.sim.sensors import SENSOR_TYPES, SensorSpec, sensor_specs  # noqa: E402
+from isaacgymenvs_mw.sim.sensors import (  # noqa: E402
+    SENSOR_TYPES,
+    ContactForces,
+    HeightScan,
+    Sensor,
+    SensorSpec,
+    sensor_specs,
+)
 from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
 from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
     TERRAIN_TYPES,
@@ -72,6 +79,9 @@ __all__ = [
     "SIM_KEYS",
     "SceneAsset",
     "SENSOR_TYPES",
+    "ContactForces",
+    "HeightScan",
+    "Sensor",
     "SensorSpec",
     "sensor_specs",
     "asset_path",

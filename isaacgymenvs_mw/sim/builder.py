@@ -22,7 +22,7 @@ import numpy as np
 
 from isaacgymenvs_mw.sim.cameras import CameraSpec, add_cameras
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
-from isaacgymenvs_mw.sim.sensors import SensorSpec, add_sensors
+from isaacgymenvs_mw.sim.sensors import ContactForces, Sensor
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
 from isaacgymenvs_mw.sim.terrain import GROUND_PART_PREFIX, Terrain
 from isaacgymenvs_mw.utils.config import real_number
@@ -143,8 +143,9 @@ class ModelRequest:
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
     # Cameras (env.cameras, sim/cameras.py), added on their bodies once the scene is composed.
     cameras: Sequence[CameraSpec] = ()
-    # Sensors the task YAML declares (env.sensors, sim/sensors.py), added once the scene is composed.
-    sensors: Sequence[SensorSpec] = ()
+    # Sensors the task YAML declares (env.sensors) and the task adds (sim/sensors.py), added once the scene is
+    # composed; the contact forces of contact_bodies come after them (all_sensors).
+    sensors: Sequence[Sensor] = ()
     # Step one world in MuJoCo C at build time to see whether the drives diverge (sim.stabilityProbe, sim/stability.py).
     stability_probe: bool = True
 
@@ -152,6 +153,11 @@ class ModelRequest:
         """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""
         spec = self.spec if self.spec is not None else load_spec(self.asset_file, self.collapse_fixed_joints)
         return [b.name for b in spec.bodies]
+
+    def all_sensors(self) -> tuple[Sensor, ...]:
+        """The sensors the model is built with, in column order: ``sensors``, then the contact forces of
+        ``contact_bodies``. ``Simulator(sensors=...)`` binds them."""
+        return (*self.sensors, *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "env.asset") -> mujoco.MjSpec:
@@ -343,19 +349,11 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
             geom.contype, geom.conaffinity = contype, conaffinity
     _set_geom_contacts(spec, request.geom_contacts)
     add_cameras(spec, request.cameras, lambda pattern, key: _one_body(spec, pattern, key))
-    add_sensors(spec, request.sensors)
-
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
             raise ConfigError(f"contact body '{body_name}' is not a body of {request.asset_file}")
-        spec.add_sensor(
-            name=f"contact_{body_name}",
-            type=mujoco.mjtSensor.mjSENS_CONTACT,
-            objtype=mujoco.mjtObj.mjOBJ_BODY,
-            objname=body_name,
-            # data = force (bit 1), reduce = net force (3), one slot
-            intprm=[1 << 1, 3, 1],
-        )
+    for sensor in request.all_sensors():
+        sensor.add_to(spec)
 
     _apply_options(spec, request.options)
     model = spec.compile()

@@ -1,17 +1,29 @@
-"""Sensors by name: MuJoCo sensors of the model (an asset's MJCF ``<sensor>`` section, or ``env.sensors`` in the task
-YAML) as torch views ``(num_envs, dim)`` of the batched ``sensordata``, with no host copy.
+"""Sensors: one interface (``Sensor``) for everything a task senses, each a named torch view ``(num_envs, ...)``
+with no host copy (``Simulator.sensor(name)``).
 
-MuJoCo computes every sensor inside each physics step, from the state at the start of that step (its forward pass
-runs before the integration), so after ``Simulator.simulate()`` a view holds the values of the last physics step's
-start state, like ``xpos`` and ``cvel``; ``Simulator.forward()`` recomputes them from the current state. A world
-reset by ``Simulator.reset_worlds`` reads zeros until its next physics step.
+A sensor is declared before the model is built (``ModelRequest.sensors``, or ``env.sensors`` in the task YAML) and
+adds what it needs to the model spec there (``Sensor.add_to``); once the model is compiled the simulator binds it
+(``Sensor.bind``: its view) and refreshes it in the step's one sense phase:
+  * MuJoCo sensors (an asset's MJCF ``<sensor>`` section, ``env.sensors`` entries, the net contact forces of
+    ``ContactForces``) are columns of the batched ``sensordata``, which each physics step rewrites; they have nothing
+    to do in ``sense()``. MuJoCo computes them from the state at the start of that step (its forward pass runs before
+    the integration), so after ``Simulator.simulate()`` a view holds the values of the last physics step's start
+    state, like ``xpos`` and ``cvel``; ``Simulator.forward()`` recomputes them from the current state. A world reset
+    by ``Simulator.reset_worlds`` reads zeros until its next physics step.
+  * Computed sensors (``HeightScan``) are torch work on the device: ``Simulator.sense()`` refreshes them from the
+    current state. VecTask calls it once per step, after the resets and before the observation is computed (inside
+    the captured step on CUDA), and before the observation of ``reset()``.
+Cameras (sim/cameras.py) are not a ``Sensor``: their refresh is a render, Warp launches replayed as a Warp graph,
+which cannot run inside the compiled torch function that holds the sense phase (it sits between the resets and the
+flat observation, both in ``post_physics_step``); VecTask renders them after that function
+(tasks/base/step_execution.py). They can join once the flat observation is computed after a sense phase of its own.
 
-``env.sensors.<name>: {type: ..., site: ...}`` declares a sensor that the asset does not have; ``build_model`` adds
-it to the model spec before compiling (``add_sensors``). Its type is one MuJoCo sensor, or ``imu``: an accelerometer
-and a gyro on one site, MuJoCo sensors ``<name>_accelerometer`` and ``<name>_gyro``, whose view ``<name>`` is their
-6 adjacent columns (linear acceleration in m/s², gravity included as MuJoCo's accelerometer has it, then angular
-velocity in rad/s, both in the site's frame). The model records each such group as a custom text element, so a
-saved ``.mjb`` keeps it.
+``env.sensors.<name>: {type: ..., site: ...}`` declares a MuJoCo sensor that the asset does not have. Its type is one
+MuJoCo sensor, or ``imu``: an accelerometer and a gyro on one site, MuJoCo sensors ``<name>_accelerometer`` and
+``<name>_gyro``, whose view ``<name>`` is their 6 adjacent columns (linear acceleration in m/s², gravity included as
+MuJoCo's accelerometer has it, then angular velocity in rad/s, both in the site's frame). The model records each such
+group as a custom text element, so a saved ``.mjb`` keeps it. A site sensor may name a ``body`` instead: it then
+gets a site ``<name>_site`` of its own at the body's frame (the legged robots' URDFs have no sites).
 
 Frames and signs are MuJoCo's (docs/porting.md, "Sensors"): ``force`` and ``torque`` are the interaction between the
 site's body and its parent body, in the site's frame (the force the parent exerts on the child subtree, with the
@@ -20,19 +32,26 @@ torque about the site); they are not IsaacGym's asset force sensor, which sums t
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 import mujoco
 import torch
 
+from isaacgymenvs_mw.sim.height_map import HeightMap
 from isaacgymenvs_mw.sim.scene import scene_prefixes
+from isaacgymenvs_mw.sim.terrain import heightfield_grid
 from isaacgymenvs_mw.utils.config import check_entry
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.rotations import yaw_from_quat
+
+if TYPE_CHECKING:  # the simulator imports this module
+    from isaacgymenvs_mw.sim.simulator import Simulator
 
 _S = mujoco.mjtSensor
-# env.sensors types -> the MuJoCo sensors each adds, in column order (``imu``: two). All read a site; the frame
-# sensors may read a body instead.
+# env.sensors types -> the MuJoCo sensors each adds, in column order (``imu``: two). All read a site (or a site of
+# their own on a body); the frame sensors may read a body itself.
 SENSOR_TYPES: dict[str, tuple[mujoco.mjtSensor, ...]] = {
     "imu": (_S.mjSENS_ACCELEROMETER, _S.mjSENS_GYRO),
     "accelerometer": (_S.mjSENS_ACCELEROMETER,),
@@ -52,9 +71,32 @@ SENSOR_KEYS = ("type", "site", "body")
 GROUP_TEXT_PREFIX = "sensor_group:"
 
 
+class Sensor(ABC):
+    """One sensor of the simulator, seen by tasks as the view ``Simulator.sensor(name)``.
+
+    Subclasses set ``name`` (unique among the model's sensors) and implement ``bind``; a MuJoCo sensor also adds
+    itself to the model spec (``add_to``), a computed one refreshes its view in ``sense``."""
+
+    name: str
+
+    def add_to(self, spec: mujoco.MjSpec) -> None:
+        """Add what the sensor needs to the model being built (MuJoCo sensors, sites). Computed sensors add
+        nothing."""
+
+    @abstractmethod
+    def bind(self, sim: Simulator) -> torch.Tensor:
+        """Its (num_worlds, ...) view on ``sim``'s device, made once after the model is compiled. Always the same
+        tensor, refreshed in place: a captured step holds its address."""
+
+    def sense(self) -> None:
+        """Refresh the view from the simulator's current state: device torch work only, no host sync (it runs in
+        the captured step on CUDA). MuJoCo sensors have nothing to do: each physics step rewrites ``sensordata``."""
+
+
 @dataclass(frozen=True)
-class SensorSpec:
-    """One ``env.sensors`` entry: a sensor of ``type`` on ``site`` (or, for the frame sensors, on ``body``)."""
+class SensorSpec(Sensor):
+    """One ``env.sensors`` entry: a MuJoCo sensor of ``type`` on ``site``, or on ``body`` (the frame sensors read
+    the body's frame; the others a site ``<name>_site`` added at it)."""
 
     name: str
     type: str
@@ -72,6 +114,34 @@ class SensorSpec:
             return [self.name]
         return [f"{self.name}_{p.name[len('mjSENS_'):].lower()}" for p in parts]
 
+    def add_to(self, spec: mujoco.MjSpec) -> None:
+        """Add its MuJoCo sensors after those the spec has (so their columns come after); a group's parts one after
+        the other, so that its columns are adjacent."""
+        if self.site is not None:
+            field, objname, names = "site", self.site, [s.name for s in spec.sites]
+        else:
+            field, objname, names = "body", self.body, [b.name for b in spec.bodies][1:]
+        if objname not in names:
+            raise ConfigError(f"{self.key}.{field}={objname!r} is not a {field} of the model; {field}s: {names}")
+        parts = self.part_names()
+        groups = {t.name[len(GROUP_TEXT_PREFIX):] for t in spec.texts if t.name.startswith(GROUP_TEXT_PREFIX)}
+        clash = sorted(({s.name for s in spec.sensors} | groups) & ({self.name} | set(parts)))
+        if clash:
+            raise ConfigError(f"{self.key}: the model already has a sensor named {clash}; give another name")
+        objtype = mujoco.mjtObj.mjOBJ_SITE if self.site is not None else mujoco.mjtObj.mjOBJ_BODY
+        if self.body is not None and self.type not in BODY_TYPES:
+            objtype, objname = mujoco.mjtObj.mjOBJ_SITE, f"{self.name}_site"
+            if objname in {s.name for s in spec.sites}:
+                raise ConfigError(f"{self.key}: the model already has a site named {objname!r}; give another name")
+            spec.body(self.body).add_site(name=objname)  # at the body's frame, its axes
+        for part, kind in zip(parts, SENSOR_TYPES[self.type]):
+            spec.add_sensor(name=part, type=kind, objtype=objtype, objname=objname)
+        if len(parts) > 1:
+            spec.add_text(name=f"{GROUP_TEXT_PREFIX}{self.name}", data=" ".join(parts))
+
+    def bind(self, sim: Simulator) -> torch.Tensor:
+        return sim.sensors.view(self.name, self.key)
+
 
 def sensor_specs(cfg: Mapping | None) -> tuple[SensorSpec, ...]:
     """``env.sensors``: {name: {type, site | body}} as ``SensorSpec``s in YAML order; a bad entry is an error naming
@@ -88,44 +158,79 @@ def sensor_specs(cfg: Mapping | None) -> tuple[SensorSpec, ...]:
         if kind not in SENSOR_TYPES:
             raise ConfigError(f"{key}.type={kind!r} is invalid: give one of {list(SENSOR_TYPES)}")
         site, body = entry.get("site"), entry.get("body")
-        if (site is None) == (body is None) or (body is not None and kind not in BODY_TYPES):
-            where = "site or body" if kind in BODY_TYPES else "site"
-            raise ConfigError(f"{key}: give exactly one {where} for a sensor of type {kind} (site={site!r}, "
+        if (site is None) == (body is None):
+            raise ConfigError(f"{key}: give exactly one site or body for a sensor of type {kind} (site={site!r}, "
                               f"body={body!r})")
         out.append(SensorSpec(str(name), str(kind), None if site is None else str(site),
                               None if body is None else str(body)))
     return tuple(out)
 
 
-def add_sensors(spec: mujoco.MjSpec, sensors: Sequence[SensorSpec]) -> None:
-    """Add each declared sensor to the model being built, after the asset's own (so their columns come after the
-    asset's); a group's parts are added one after the other, so its columns are adjacent."""
-    taken = {s.name for s in spec.sensors}
-    for sensor in sensors:
-        if sensor.site is not None:
-            objtype, objname, names = mujoco.mjtObj.mjOBJ_SITE, sensor.site, [s.name for s in spec.sites]
-        else:
-            objtype, objname, names = mujoco.mjtObj.mjOBJ_BODY, sensor.body, [b.name for b in spec.bodies][1:]
-        field = "site" if sensor.site is not None else "body"
-        if objname not in names:
-            raise ConfigError(f"{sensor.key}.{field}={objname!r} is not a {field} of the model; {field}s: {names}")
-        parts = sensor.part_names()
-        clash = sorted(taken & ({sensor.name} | set(parts)))
-        if clash:
-            raise ConfigError(f"{sensor.key}: the model already has a sensor named {clash}; give another name")
-        for part, kind in zip(parts, SENSOR_TYPES[sensor.type]):
-            spec.add_sensor(name=part, type=kind, objtype=objtype, objname=objname)
-        taken |= {sensor.name, *parts}
-        if len(parts) > 1:
-            spec.add_text(name=f"{GROUP_TEXT_PREFIX}{sensor.name}", data=" ".join(parts))
+class ContactForces(Sensor):
+    """The net contact force on each of ``bodies``: MuJoCo ``contact`` sensors ``contact_<body>`` (net force, world
+    frame: the force the body exerts on what it touches), viewed as ``contact_forces``, (num_worlds, bodies, 3).
+    ``ModelRequest.contact_bodies`` declares it (``env.asset.contactBodies`` and the legged tasks' bodies)."""
+
+    name = "contact_forces"
+
+    def __init__(self, bodies: Sequence[str]) -> None:
+        self.bodies = tuple(bodies)
+
+    def add_to(self, spec: mujoco.MjSpec) -> None:
+        """One sensor per body, one after the other: their columns are adjacent, so the view is a slice."""
+        for body in self.bodies:
+            spec.add_sensor(name=f"contact_{body}", type=mujoco.mjtSensor.mjSENS_CONTACT,
+                            objtype=mujoco.mjtObj.mjOBJ_BODY, objname=body,
+                            intprm=[1 << 1, 3, 1])  # data = force (bit 1), reduce = net force (3), one slot
+
+    def bind(self, sim: Simulator) -> torch.Tensor:
+        first = sim.sensors.columns[f"contact_{self.bodies[0]}"].start
+        return sim.sensordata[:, first:first + 3 * len(self.bodies)].unflatten(1, (len(self.bodies), 3))
+
+
+class HeightScan(Sensor):
+    """Terrain heights (m, world z) under a grid of ``points_x`` x ``points_y`` points, ``length`` x ``width``
+    metres, centred on each world's floating base and turned with its yaw (x forward): ``height_scan``,
+    (num_worlds, points_x * points_y), x-major (legged_gym's measured heights). The heights are those of the
+    compiled ground (its heightfields and boxes, read back from the model), interpolated as MuJoCo collides with
+    them (``height_map``, which also looks up any other point)."""
+
+    name = "height_scan"
+
+    def __init__(self, length: float, width: float, points_x: int, points_y: int) -> None:
+        self.length, self.width = float(length), float(width)
+        self.points_x, self.points_y = int(points_x), int(points_y)
+        self.height_map: HeightMap | None = None  # made by bind, from the compiled model
+
+    def bind(self, sim: Simulator) -> torch.Tensor:
+        if not sim.floating_base:
+            raise ConfigError("a height scan follows a floating base, but the model's root is fixed "
+                              "(env.asset.fixBaseLink)")
+        grid = heightfield_grid(sim.mj_model)
+        self.height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], sim.device)
+        xs = torch.linspace(-0.5, 0.5, self.points_x, device=sim.device) * self.length
+        ys = torch.linspace(-0.5, 0.5, self.points_y, device=sim.device) * self.width
+        gx, gy = torch.meshgrid(xs, ys, indexing="ij")
+        self._px, self._py = gx.flatten(), gy.flatten()  # (P,) each, base yaw frame
+        self._root_pos, self._root_quat = sim.root_pos, sim.root_quat
+        self._heights = torch.zeros(sim.num_worlds, self._px.shape[0], device=sim.device)
+        return self._heights
+
+    def sense(self) -> None:
+        yaw = yaw_from_quat(self._root_quat)
+        c, s = torch.cos(yaw).unsqueeze(1), torch.sin(yaw).unsqueeze(1)
+        px, py, pos = self._px, self._py, self._root_pos
+        self._heights[:] = self.height_map(pos[:, 0:1] + c * px - s * py, pos[:, 1:2] + s * px + c * py)
 
 
 class SensorViews:
     """Every named sensor of a compiled model as a basic slice of ``sensordata`` ((num_worlds, nsensordata) torch
-    view of the Warp array): reading one costs no copy, and the physics refreshes it in place."""
+    view of the Warp array): reading one costs no copy, and the physics refreshes it in place. The views of bound
+    ``Sensor``s (``add``) are looked up by name beside them."""
 
     def __init__(self, m: mujoco.MjModel, sensordata: torch.Tensor) -> None:
         self._data = sensordata
+        self._bound: dict[str, torch.Tensor] = {}
         self.columns: dict[str, slice] = {}
         for s in range(m.nsensor):
             name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SENSOR, s)
@@ -138,10 +243,16 @@ class SensorViews:
 
     @property
     def names(self) -> list[str]:
-        return list(self.columns)
+        return list(dict.fromkeys([*self.columns, *self._bound]))
+
+    def add(self, name: str, view: torch.Tensor) -> None:
+        """Look ``name`` up as ``view`` (a bound ``Sensor``'s) from now on."""
+        self._bound[name] = view
 
     def view(self, name: str, key: str) -> torch.Tensor:
-        """(num_worlds, dim) view of sensor ``name``; ``key``: where the user named it (the error names it)."""
+        """(num_worlds, ...) view of sensor ``name``; ``key``: where the user named it (the error names it)."""
+        if name in self._bound:
+            return self._bound[name]
         if name not in self.columns:
             raise ConfigError(f"{key}: {name!r} is not a sensor of the model; its sensors: {self.names}")
         return self._data[:, self.columns[name]]

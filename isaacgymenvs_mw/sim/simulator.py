@@ -23,7 +23,7 @@ from isaacgymenvs_mw.sim.cameras import CameraSpec, Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import KernelLoad, init_warp
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
-from isaacgymenvs_mw.sim.sensors import SensorViews
+from isaacgymenvs_mw.sim.sensors import Sensor, SensorViews
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
 
@@ -78,6 +78,9 @@ class Simulator:
             Go1); the CPU device runs kernels serially and reproduces runs either way.
         cameras: the model's cameras to render (``env.cameras``, already added to ``mj_model`` by ``build_model``);
             their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
+        sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``): each is bound to its view
+            (``sensor(name)``), and the computed ones are refreshed by ``sense()``. The model's MuJoCo sensors are
+            views by name without it.
     """
 
     def __init__(
@@ -92,6 +95,7 @@ class Simulator:
         use_graphs: bool | None = None,
         deterministic: bool = False,
         cameras: Sequence[CameraSpec] = (),
+        sensors: Sequence[Sensor] = (),
     ) -> None:
         if num_worlds < 1:
             raise ConfigError(f"numEnvs must be >= 1, got {num_worlds}")
@@ -135,6 +139,9 @@ class Simulator:
         self.cameras: Cameras | None = None
         if cameras:
             self.cameras = Cameras(mj_model, self.model, self.data, cameras, self.num_worlds, self.wp_device)
+        for sensor in sensors:
+            self.sensors.add(sensor.name, sensor.bind(self))
+        self._computed_sensors = [s for s in sensors if type(s).sense is not Sensor.sense]
         # The kernels start compiling now, in the background (the render context above launched its own first): a
         # cold start compiles while the task builds the rest of itself, not after it.
         self._kernel_load = self._start_kernel_load()
@@ -291,11 +298,18 @@ class Simulator:
         self.recapture()
 
     def sensor(self, name: str, key: str = "sensor") -> torch.Tensor:
-        """(num_worlds, dim) torch view of the model's sensor ``name`` (an MJCF ``<sensor>`` or an ``env.sensors``
-        entry): a slice of ``sensordata``, no copy, rewritten in place by each physics step (sim/sensors.py says
-        which state it describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for the
-        error when there is none of that name."""
+        """(num_worlds, ...) torch view of the sensor ``name``: a MuJoCo sensor of the model (an MJCF ``<sensor>``
+        or an ``env.sensors`` entry: a slice of ``sensordata``, rewritten in place by each physics step) or a bound
+        ``Sensor``'s (``contact_forces``, a slice too; ``height_scan``, refreshed by ``sense()``); no copy
+        (sim/sensors.py says which state each describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for
+        the error when there is none of that name."""
         return self.sensors.view(name, key)
+
+    def sense(self) -> None:
+        """The step's sense phase: refresh every computed sensor from the current state (device torch work, no host
+        sync, capturable). MuJoCo's sensors need nothing here: the physics step rewrote them."""
+        for sensor in self._computed_sensors:
+            sensor.sense()
 
     def contact_columns(self, bodies: Sequence[str]) -> torch.Tensor:
         """Columns of ``sensordata`` holding each body's net contact force, (len(bodies), 3); build once, reuse.

@@ -23,19 +23,19 @@ from dataclasses import replace
 import torch
 
 from isaacgymenvs_mw.sim import (
+    HeightScan,
     ModelRequest,
     generate_terrain,
     ground_geoms,
-    heightfield_grid,
     match_body_names,
     match_joint_numbers,
     match_joint_values,
     parse_terrain_config,
 )
-from isaacgymenvs_mw.tasks.base.height_map import HeightMap
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
@@ -50,6 +50,7 @@ class LeggedTask(VecTask):
         self._init_joint_settings(env)
         self._init_bodies(env["asset"])
         self._init_buffers(env)
+        self._init_sensor_terms(env.get("observeSensors"))
         self._init_rewards(env["rewards"])
         if self.terrain is not None:
             self._init_terrain_state()
@@ -67,11 +68,15 @@ class LeggedTask(VecTask):
                 if body not in sensed:
                     sensed.append(body)
         request.contact_bodies = sensed
+        self._sensed_bodies = sensed  # the rows of the contact_forces sensor
         if self.terrain is not None:
             if request.ground is None:
                 raise ConfigError("env.terrain.type: heightfield replaces the ground plane and takes its friction: set "
                                  "env.plane.enabled: True (env.plane.friction is the terrain's friction)")
             request.terrain = self.terrain
+            t = self.terrain_settings
+            self.height_scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
+            request.sensors = (*request.sensors, self.height_scan)
         return request
 
     # ----------------------------------------------------------------- terrain
@@ -108,8 +113,7 @@ class LeggedTask(VecTask):
     def _init_terrain_state(self) -> None:
         """Per-env cells, curriculum levels, the device height map and the height-scan points."""
         n, dev, t, cfg = self.num_envs, self.device, self.terrain_settings, self.terrain.config
-        grid = heightfield_grid(self.sim.mj_model)  # what MuJoCo collides with, read back from the model
-        self.height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], dev)
+        self.height_map = self.height_scan.height_map  # what MuJoCo collides with, read back from the model
         self.terrain_origins = torch.tensor(self.terrain.origins, device=dev, dtype=torch.float)
         self.num_levels = cfg.numLevels
         self.cell_length = cfg.mapLength
@@ -122,20 +126,9 @@ class LeggedTask(VecTask):
         self.spawn_jitter = float(t["spawnJitter"])
         self.measure_heights = bool(t["measureHeights"])
         self.scan_offset = float(t["scanHeightOffset"])
-        xs = torch.linspace(-0.5, 0.5, int(t["scanPointsX"]), device=dev) * float(t["scanLength"])
-        ys = torch.linspace(-0.5, 0.5, int(t["scanPointsY"]), device=dev) * float(t["scanWidth"])
-        gx, gy = torch.meshgrid(xs, ys, indexing="ij")
-        self.scan_points = torch.stack((gx.flatten(), gy.flatten()), dim=1)  # (P, 2), base yaw frame
-        self.measured_heights = torch.zeros(n, self.scan_points.shape[0], device=dev)
+        # Terrain heights under the scan points, refreshed by the step's sense phase (sim/sensors.py, HeightScan).
+        self.measured_heights = self.sim.sensor("height_scan")
         self._curriculum_started = False  # the first (full) reset places envs; later resets move them
-
-    def scan_heights(self) -> torch.Tensor:
-        """Terrain heights (m, world z) under the scan points around each base, rotated by the base's yaw."""
-        yaw = self.base_yaw()
-        c, s = torch.cos(yaw).unsqueeze(1), torch.sin(yaw).unsqueeze(1)
-        px, py = self.scan_points[:, 0], self.scan_points[:, 1]
-        pos = self.sim.root_pos
-        return self.height_map(pos[:, 0:1] + c * px - s * py, pos[:, 1:2] + s * px + c * py)
 
     def _update_terrain_curriculum(self, mask: torch.Tensor) -> None:
         """legged_gym's rule for the resetting envs: up past half a cell, down under half the commanded distance,
@@ -179,9 +172,8 @@ class LeggedTask(VecTask):
                                        "env.asset.penalizeContactBodies")
         self.base_body = self.sim.body_id(asset.get("baseBody", names[1]))
         self.ground_geom = ground_geoms(self.sim.mj_model)[0]  # the parts of a terrain share one friction
-        sensed = list(self.sim.contact_sensors)
-        self._contact_adr = self.sim.contact_columns(sensed)
-        position = {b: i for i, b in enumerate(sensed)}
+        self._contact_forces = self.sim.sensor("contact_forces")  # (N, sensed bodies, 3), world frame
+        position = {b: i for i, b in enumerate(self._sensed_bodies)}
 
         def rows(bodies: list[str]) -> torch.Tensor:
             return torch.tensor([position[b] for b in bodies], device=self.device, dtype=torch.long)
@@ -228,13 +220,26 @@ class LeggedTask(VecTask):
         self.base_lin_vel = torch.zeros(n, 3, device=dev)
         self.base_ang_vel = torch.zeros(n, 3, device=dev)
         self.projected_gravity = torch.zeros(n, 3, device=dev)
-        self.contact_force_norm = torch.zeros(n, self._contact_adr.shape[0], device=dev)
+        self.contact_force_norm = torch.zeros(n, self._contact_forces.shape[1], device=dev)
         self.torques = self.sim.qfrc_actuator[:, 6:]
         # The critic's privileged view of the randomised world: the ground's friction and the base's added mass,
         # read from the (possibly per-world) model fields the randomisation layer writes.
         self._ground_friction = self.sim.model_field("geom_friction")[:, self.ground_geom, 0:1]
         self._base_mass = self.sim.model_field("body_mass")[:, self.base_body:self.base_body + 1]
         self._nominal_base_mass = float(self.sim.mj_model.body_mass[self.base_body])
+
+    def _init_sensor_terms(self, cfg) -> None:
+        """``env.observeSensors``: {sensor name: scale}. Each sensor of the model (an ``env.sensors`` entry such as
+        an IMU, an MJCF sensor, ``contact_forces``) becomes a policy observation term of its name, after the others:
+        its view's values, flattened, times the scale. Empty (the default): the observation is unchanged."""
+        key = "env.observeSensors"
+        if cfg is not None and not hasattr(cfg, "items"):
+            raise ConfigError(f"{key}={cfg!r} is invalid: give a mapping {{sensor name: scale}}, e.g. {{imu: 1.0}}")
+        self._sensor_terms = []
+        for name, scale in (cfg or {}).items():
+            view = self.sim.sensor(str(name), key=f"{key}.{name}")
+            self._sensor_terms.append(ObsTerm(str(name), int(view[0].numel()), real_number(scale, f"{key}.{name}"),
+                                              compute=lambda view=view: view.flatten(1)))
 
     def _init_rewards(self, rew: dict) -> None:
         scales = dict(rew["scales"])
@@ -266,6 +271,7 @@ class LeggedTask(VecTask):
     def observation_terms(self) -> list[ObsTerm]:
         # Sensor noise per term comes from task.randomization_params.observations.terms (randomisation layer).
         s, nj = self.obs_scales, self.num_actions
+        scan = [self._height_scan_term()] if self.terrain is not None and self.measure_heights else []
         return [
             ObsTerm("base_lin_vel", 3, s["linVel"], compute=lambda: self.base_lin_vel),  # body frame, m/s
             ObsTerm("base_ang_vel", 3, s["angVel"], compute=lambda: self.base_ang_vel),  # body frame, rad/s
@@ -276,15 +282,14 @@ class LeggedTask(VecTask):
             ObsTerm("dof_vel", nj, s["dofVel"], compute=lambda: self.sim.dof_vel),
             # the action the drives received (delayed, if delayed)
             ObsTerm("actions", nj, compute=lambda: self.actions),
-        ] + ([self._height_scan_term()] if self.terrain is not None and self.measure_heights else [])
+        ] + scan + self._sensor_terms
 
     def _height_scan_term(self) -> ObsTerm:
-        return ObsTerm("height_scan", self.scan_points.shape[0], self.obs_scales["heightMeasurements"],
+        return ObsTerm("height_scan", self.measured_heights.shape[1], self.obs_scales["heightMeasurements"],
                        compute=self._height_scan)
 
     def _height_scan(self) -> torch.Tensor:
         """Base height above each scan point minus scanHeightOffset, clipped to ±1 m (legged_gym's measurement)."""
-        self.measured_heights[:] = self.scan_heights()
         return (self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights).clamp(-1.0, 1.0)
 
     def state_terms(self) -> list[ObsTerm]:
@@ -341,8 +346,7 @@ class LeggedTask(VecTask):
         self.base_lin_vel[:] = quat_rotate_inverse(q, self.sim.root_lin_vel)
         self.base_ang_vel[:] = self.sim.root_ang_vel
         self.projected_gravity[:] = quat_rotate_inverse(q, self.gravity_vec)
-        forces = self.sim.sensordata[:, self._contact_adr]  # (N, bodies, 3)
-        self.contact_force_norm[:] = torch.norm(forces, dim=-1)
+        self.contact_force_norm[:] = torch.norm(self._contact_forces, dim=-1)
 
     def check_termination(self) -> torch.Tensor:
         hit = (self.contact_force_norm[:, self._term_idx] > 1.0).any(dim=1)

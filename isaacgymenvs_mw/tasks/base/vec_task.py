@@ -5,7 +5,7 @@ one after-physics sequence (``post_physics_step``) runs every task:
 
     progress_buf += 1 -> refresh_state() -> terminations: check_termination() | blown-up worlds; successes:
     check_success(); and time-outs -> compute_reward() -> resets: the randomisation layer's on_reset, then reset_idx() -> after_reset()
-    -> compute_observations()
+    -> sense: self.sim.sense() (computed sensors, sim/sensors.py) -> compute_observations()
 
 A task writes the terms of that sequence, not the sequence (``tasks/base/contract.py`` lists them).
 
@@ -14,7 +14,8 @@ the step wait on the GPU. On CUDA the step's torch work is compiled and captured
 hooks stay device-only tensor code. A world that blew up (NaN/inf, or a speed past ``DIVERGED_SPEED``) is put back
 in the model's initial pose and marked in ``nonfinite_buf``; the sequence counts it as a termination (the task's
 ``reset_idx`` places it, its reward is zeroed; ``sim.stability.BlowupLog`` names the joint that ran away).
-A ported IsaacGymEnvs task may still override ``post_physics_step``; it then calls ``reset_envs(mask)`` itself.
+A ported IsaacGymEnvs task may still override ``post_physics_step``; it then calls ``reset_envs(mask)`` itself, and
+``self.sim.sense()`` before observing when it reads a computed sensor (IsaacGym's ``refresh_*_tensor``).
 """
 
 from __future__ import annotations
@@ -144,6 +145,7 @@ class VecTask:
             use_graphs=sim.get("useGraphs"),
             deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
             cameras=request.cameras,
+            sensors=request.all_sensors(),
         )
 
     def _setup_randomization(self) -> None:
@@ -298,6 +300,7 @@ class VecTask:
         new_episode = self.reset_buf != 0
         self.reset_envs(new_episode)
         self.after_reset(new_episode)
+        self.sim.sense()
         self.compute_observations()
 
     def timed_out(self, episode_step: torch.Tensor) -> torch.Tensor:
@@ -463,6 +466,7 @@ class VecTask:
         """Reset every env and return the first observations (call once before stepping)."""
         self._built_observations()
         self.reset_envs(self._all_envs)
+        self.sim.sense()
         self.observations.compute_checked(self.compute_observations)
         self.randomizer.observations(self.obs_buf)
         return self._reset_outputs(self._all_envs)
@@ -471,6 +475,7 @@ class VecTask:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
         self.reset_envs(done)
+        self.sim.sense()
         self.compute_observations()
         self.randomizer.observations(self.obs_buf)
         return self._reset_outputs(done), done.nonzero(as_tuple=False).flatten()

@@ -1,4 +1,4 @@
-"""Terrain height lookup on the device: torch only, no host sync, any batch shape."""
+"""Terrain height lookup on the device (the height scan's, sim/sensors.py): torch only, no host sync."""
 
 from __future__ import annotations
 
