@@ -15,7 +15,7 @@ from isaacgymenvs_mw.utils.config import compose_config, to_dict
 BASE = OmegaConf.load(REPO_ROOT / "cfg" / "legged" / "base.yaml")
 ROBOTS = ["Anymal", "Go1"]
 
-# What isaacgymenvs_mw/tasks/base/legged_task.py and VecTask read from a legged robot's composed task config.
+# What isaacgymenvs_mw/tasks/legged_task.py and VecTask read from a legged robot's composed task config.
 LEGGED_KEYS = [
     "name", "env.numEnvs", "env.numActions", "env.controlFrequencyInv",
     "env.episodeLength_s", "env.asset.assetFileName", "env.asset.baseBody", "env.asset.footBodies",

@@ -15,7 +15,7 @@ import torch
 from isaacgymenvs_mw import make as make_task
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
-from isaacgymenvs_mw.tasks.franka_cubes import fingertips
+from isaacgymenvs_mw.tasks.franka import fingertips
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 

@@ -763,7 +763,7 @@ def test_episodes_end_by_time_out_at_the_step_limit(robot):
 
 # ------------------------------------------------------------------------------------------ tilt termination
 def test_tilt_test_equals_the_angle_between_the_base_up_axis_and_the_world_up():
-    from isaacgymenvs_mw.tasks.base.legged_task import base_tilted
+    from isaacgymenvs_mw.tasks.legged_task import base_tilted
 
     rng = np.random.default_rng(4)
     axes = rng.normal(size=(500, 3))

@@ -1,7 +1,7 @@
 """Ant: IsaacGymEnvs' four-legged runner (assets/mjcf/ant.xml, its own gear-15 motors); settings in
 cfg/task/Ant.yaml."""
 
-from isaacgymenvs_mw.tasks.base.locomotion_task import LocomotionTask
+from isaacgymenvs_mw.tasks.locomotion_task import LocomotionTask
 
 
 class Ant(LocomotionTask):

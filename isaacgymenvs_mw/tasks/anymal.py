@@ -1,6 +1,6 @@
 """ANYmal C walking on flat ground; everything robot-specific is in cfg/task/Anymal.yaml."""
 
-from isaacgymenvs_mw.tasks.base.legged_task import LeggedTask
+from isaacgymenvs_mw.tasks.legged_task import LeggedTask
 
 
 class Anymal(LeggedTask):

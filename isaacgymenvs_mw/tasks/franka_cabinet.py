@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import torch
 
-from isaacgymenvs_mw.tasks.base.franka import FrankaArm
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.tasks.franka import FrankaArm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # env keys of the task YAML (IsaacGymEnvs' names) that are plain numbers.

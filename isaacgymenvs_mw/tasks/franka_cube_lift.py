@@ -20,16 +20,16 @@ from __future__ import annotations
 
 import torch
 
-from isaacgymenvs_mw.tasks import franka_cubes as cubes
-from isaacgymenvs_mw.tasks.base.franka import FrankaArm
+from isaacgymenvs_mw.tasks import franka
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm, camera_terms
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.tasks.franka import FrankaArm
 from isaacgymenvs_mw.utils.config import boolean, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_yaw
 
-REST_HEIGHT = cubes.TABLE_TOP + cubes.CUBE_A_SIZE / 2.0  # the cube's centre when it rests on the table (m)
+REST_HEIGHT = franka.TABLE_TOP + franka.CUBE_A_SIZE / 2.0  # the cube's centre when it rests on the table (m)
 # env keys of the task YAML that are plain numbers, and whether they must be > 0 (else >= 0)
 _NUMBER_KEYS = {"actionScale": True, "frankaDofNoise": False, "startPositionNoise": False,
                 "startRotationNoise": False, "liftHeight": True}
@@ -57,7 +57,7 @@ class FrankaCubeLift(VecTask):
                               "'joint_pos'")
         self.env_numbers = {key: real_number(env[key], f"env.{key}", 0.0, low_open=must_be_positive)
                             for key, must_be_positive in _NUMBER_KEYS.items()}
-        # True: the critic also reads what the simulator knows (franka_cubes.privileged_terms)
+        # True: the critic also reads what the simulator knows (franka.privileged_terms)
         self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
@@ -65,7 +65,7 @@ class FrankaCubeLift(VecTask):
         self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         self.cube = self.sim.asset("cubeA")
         self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1
-        self.table_centre = torch.tensor([*cubes.TABLE_CENTRE_XY], device=self.device)
+        self.table_centre = torch.tensor([*franka.TABLE_CENTRE_XY], device=self.device)
         scales = {t: real_number(env[k], f"env.{k}") for t, k in REWARD_SCALE_KEYS.items()}
         self.rewards = RewardTerms(self, scales, self.num_envs, self.device, key="env")
         self.terms: dict[str, torch.Tensor] = {}
@@ -73,13 +73,13 @@ class FrankaCubeLift(VecTask):
 
     # ------------------------------------------------------------------ pre-physics
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        self.arm.move_targets(cubes.joint_pos_targets_delta(actions, self.arm, self.arm_step))
+        self.arm.move_targets(franka.joint_pos_targets_delta(actions, self.arm, self.arm_step))
 
     # ------------------------------------------------------------------ post-physics
     def refresh_state(self) -> None:
         """The quantities the reward terms and the success test share, once per step."""
         grasp = self.arm.grasp_pos()
-        self.terms = cube_lift_terms(self.cube.root_pos, grasp, *cubes.fingertips(self.arm), self.sim.dof_pos[:, 7],
+        self.terms = cube_lift_terms(self.cube.root_pos, grasp, *franka.fingertips(self.arm), self.sim.dof_pos[:, 7],
                                      self.env_numbers["liftHeight"])
 
     def check_success(self) -> torch.Tensor:
@@ -128,7 +128,7 @@ class FrankaCubeLift(VecTask):
         """env.asymmetric_observations: what only the critic reads besides the policy's observation."""
         if not self.asymmetric:
             return []
-        return cubes.privileged_terms(self.arm, {"cube": self.cube}, observed=self.proprioception_terms())
+        return franka.privileged_terms(self.arm, {"cube": self.cube}, observed=self.proprioception_terms())
 
     def state_terms(self) -> list[ObsTerm] | None:
         return self.observation_terms() + self.privileged_terms() if self.asymmetric else None
@@ -138,7 +138,7 @@ class FrankaCubeLift(VecTask):
         n = self.num_envs
         self.sim.reset_worlds(mask)
         numbers = self.env_numbers
-        self.arm.reset(mask, cubes.noisy_start_pose(self.start_dof_pos, numbers["frankaDofNoise"], self.arm, n))
+        self.arm.reset(mask, franka.noisy_start_pose(self.start_dof_pos, numbers["frankaDofNoise"], self.arm, n))
         pos, quat = sample_cube(n, self.table_centre, numbers["startPositionNoise"], numbers["startRotationNoise"])
         zero = torch.zeros_like(pos)
         # The observation reads the grasp site and the cube: poses recomputed once, after both writes.
@@ -180,8 +180,8 @@ def cube_lift_terms(cube: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Ten
     """The reward and success quantities from positions (N, 3) and the finger opening (N,): ``dist`` (IGE's
     approach), ``held`` and ``lift_height`` (``grasp_terms`` with the rise to ``lift_height``), ``lifted`` (float
     0/1: the cube's centre at least ``lift_height`` above where it rests) and ``success`` (bool: held and lifted)."""
-    terms = cubes.grasp_terms(cube, grasp, finger_opening, full_rise=lift_height)
-    terms["dist"] = cubes.approach_term(cube, grasp, tip_left, tip_right)
+    terms = franka.grasp_terms(cube, grasp, finger_opening, full_rise=lift_height)
+    terms["dist"] = franka.approach_term(cube, grasp, tip_left, tip_right)
     lifted = cube[:, 2] - REST_HEIGHT >= lift_height
     terms["lifted"] = lifted.float()
     terms["success"] = lifted & (terms["held"] > 0.0)

@@ -31,14 +31,14 @@ import math
 import torch
 
 from isaacgymenvs_mw.sim.dynamics import SiteDynamics
-from isaacgymenvs_mw.tasks.base.franka import FrankaArm
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
-from isaacgymenvs_mw.tasks.franka_cubes import (
+from isaacgymenvs_mw.tasks.franka import (
     CUBE_A_SIZE,
     TABLE_CENTRE_XY,
     TABLE_TOP,
+    FrankaArm,
     approach_term,
     fingertips,
     grasp_terms,
@@ -61,7 +61,7 @@ SHAPING_SCALE_KEYS = {"grasp": "graspRewardScale", "lift_height": "liftHeightRew
 REWARD_SCALE_KEYS = {"dist": "distRewardScale", "lift": "liftRewardScale", "align": "alignRewardScale",
                      "stack": "stackRewardScale"}
 
-CUBE_B_SIZE = 0.07  # edge length (m), assets/mjcf/cube_7cm.xml (A's, CUBE_A_SIZE, is in franka_cubes.py)
+CUBE_B_SIZE = 0.07  # edge length (m), assets/mjcf/cube_7cm.xml (A's, CUBE_A_SIZE, is in franka.py)
 # IGE: A is re-drawn until its xy distance from B is at least 2 (a + b) sqrt(2) / 2 = 0.170 m (twice the sum of the
 # cubes' half-diagonals), so that the cubes never overlap, whatever their yaws.
 MIN_CUBE_DISTANCE = 2.0 * (CUBE_A_SIZE + CUBE_B_SIZE) * math.sqrt(2.0) / 2.0
@@ -86,7 +86,7 @@ class FrankaCubeStack(VecTask):
             control = env.setdefault("control", {})
             control["driveMode"] = {**dict(control.get("driveMode") or {}), "joint[1-7]": "effort"}
         self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
-        # True: the critic also reads what the simulator knows (franka_cubes.privileged_terms)
+        # True: the critic also reads what the simulator knows (franka.privileged_terms)
         self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)

@@ -1,6 +1,6 @@
 """Unitree G1 humanoid walking on flat ground or terrain; everything robot-specific is in cfg/task/G1.yaml."""
 
-from isaacgymenvs_mw.tasks.base.legged_task import LeggedTask
+from isaacgymenvs_mw.tasks.legged_task import LeggedTask
 
 
 class G1(LeggedTask):

@@ -1,6 +1,6 @@
 """Unitree Go1 walking on flat ground; everything robot-specific is in cfg/task/Go1.yaml."""
 
-from isaacgymenvs_mw.tasks.base.legged_task import LeggedTask
+from isaacgymenvs_mw.tasks.legged_task import LeggedTask
 
 
 class Go1(LeggedTask):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import torch
 
-from isaacgymenvs_mw.tasks.base.locomotion_task import LocomotionTask
+from isaacgymenvs_mw.tasks.locomotion_task import LocomotionTask
 
 
 class Humanoid(LocomotionTask):

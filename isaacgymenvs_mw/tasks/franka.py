@@ -1,11 +1,16 @@
-"""The Franka Panda of the manipulation tasks (FrankaCabinet, FrankaCubeStack): its joints, servo targets and hand
-frames in a batch of worlds.
+"""The Franka family (FrankaCabinet, FrankaCubeStack, FrankaCubeLift and its camera variants): the Panda's joints,
+servo targets and hand frames in a batch of worlds, and what the cube tasks share.
 
 The arm is the scene's main asset (``env.asset``: ``assets/mjcf/franka_panda.xml`` or a model with the same joint,
 actuator, body and site names): 7 arm joints and two coupled finger slides, 8 position servos (7 joints and the
 gripper, whose command is each finger's opening in metres, 0 ... 0.04), and the ``grasp`` site between the
 fingertip pads. IsaacGymEnvs' Franka tasks have 9 DOFs and 9 actions, one per finger; here the fingers are coupled
 by the model, so the gripper is one action and both finger positions stay in the observation.
+
+The cube tasks share the scene's dimensions, the gripper command, the arm's start-pose draw, and the reward
+quantities of the approach (IsaacGymEnvs' ``dist``) and of holding and raising cube A (this project's ``grasp`` /
+``lift_height`` shaping). All positions are in the robot's base frame, the world frame of these scenes
+(``assets/mjcf/table.xml``).
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import numpy as np
 import torch
 
 from isaacgymenvs_mw.sim import Simulator
+from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 ARM_JOINTS = tuple(f"joint{i}" for i in range(1, 8))
@@ -100,3 +106,85 @@ class FrankaArm:
     def finger_pos(self) -> tuple[torch.Tensor, torch.Tensor]:
         """World positions (N, 3) of the left and right finger bodies' origins: the inner faces of the pads."""
         return self.sim.xpos[:, self.left_finger], self.sim.xpos[:, self.right_finger]
+
+
+# ---------------------------------------------------------------- the cube tasks
+CUBE_A_SIZE = 0.05  # edge length of cube A (m), assets/mjcf/cube_5cm.xml
+TABLE_TOP = -0.1  # table surface height in the robot's base frame (m), assets/mjcf/table.xml
+TABLE_CENTRE_XY = (0.45, 0.0)
+FINGERTIP = 0.0441  # fingertip point: this far along the grasp frame's approach axis from a finger's origin (m), IGE
+OPEN, CLOSED = 0.04, 0.0  # gripper commands: each finger's opening (m)
+# FrankaCubeStack's "lifted" (IGE: A's centre 0.09 m above the table): a rise of 0.065 m from where A rests
+STACK_LIFT_RISE = CUBE_A_SIZE + 0.04 - CUBE_A_SIZE / 2.0
+
+
+def gripper_command(action: torch.Tensor) -> torch.Tensor:
+    """Each finger's opening (N,) for the gripper action (N,): >= 0 opens (OPEN), < 0 closes (CLOSED), as IGE."""
+    return torch.where(action >= 0.0, OPEN, CLOSED)
+
+
+def joint_pos_targets_delta(actions: torch.Tensor, arm: FrankaArm, arm_step: float) -> torch.Tensor:
+    """joint_pos control: the change (N, 8) of the servo targets, the 7 arm joints by ``arm_step`` x action (rad),
+    the gripper straight to its commanded opening."""
+    grip = gripper_command(actions[:, 7])
+    return torch.cat((actions[:, :7] * arm_step, (grip - arm.targets[:, 7]).unsqueeze(1)), dim=1)
+
+
+def noisy_start_pose(start: torch.Tensor, noise: float, arm: FrankaArm, n: int) -> torch.Tensor:
+    """(n, 9) reset joint positions, IGE's: each arm joint ``start`` + ``noise`` x U(-1, 1), clamped to its range;
+    the fingers stay at ``start``."""
+    offset = torch.zeros((n, 9), device=start.device)
+    offset[:, :7] = noise * (2.0 * torch.rand((n, 7), device=start.device) - 1.0)
+    return torch.clamp(start + offset, arm.dof_lower, arm.dof_upper)
+
+
+def fingertips(arm: FrankaArm) -> tuple[torch.Tensor, torch.Tensor]:
+    """World positions (N, 3) of the left and right fingertip points (IGE's fingertip links): FINGERTIP out along
+    the approach axis from each finger's pad face."""
+    approach = arm.grasp_axes()[:, :, 2]
+    left, right = arm.finger_pos()
+    return left + FINGERTIP * approach, right + FINGERTIP * approach
+
+
+def approach_term(cube: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Tensor,
+                  tip_right: torch.Tensor) -> torch.Tensor:
+    """IsaacGymEnvs' ``dist`` quantity: 1 - tanh(10 x the mean distance of the cube's centre to the grasp point and
+    the two fingertips), (N,)."""
+    d = torch.linalg.norm(cube - grasp, dim=-1)
+    d_left = torch.linalg.norm(cube - tip_left, dim=-1)
+    d_right = torch.linalg.norm(cube - tip_right, dim=-1)
+    return 1.0 - torch.tanh(10.0 * (d + d_left + d_right) / 3.0)
+
+
+def grasp_terms(cube_a: torch.Tensor, grasp: torch.Tensor, finger_opening: torch.Tensor,
+                table_top: float = TABLE_TOP, full_rise: float = STACK_LIFT_RISE) -> dict[str, torch.Tensor]:
+    """This project's shaping quantities: ``held`` (float 0/1: A's centre within 3 cm of the grasp point and each
+    finger opened less than 3 cm, i.e. closed on A's 2.5 cm half-width) and ``lift_height`` (while held, A's centre
+    above its resting height as a fraction of ``full_rise`` (m; FrankaCubeStack: the 6.5 cm rise that makes it
+    ``lifted``), clamped to 0 ... 1)."""
+    held = ((torch.linalg.norm(cube_a - grasp, dim=-1) < 0.03) & (finger_opening < 0.03)).float()
+    rise = (cube_a[:, 2] - table_top - CUBE_A_SIZE / 2.0) / full_rise
+    return {"held": held, "lift_height": held * torch.clamp(rise, 0.0, 1.0)}
+
+
+def privileged_terms(arm: FrankaArm, cubes: dict, observed: list[ObsTerm] = ()) -> list[ObsTerm]:
+    """What an asymmetric critic reads besides the policy's observation (``env.asymmetric_observations``), 9 + 6 per
+    cube + 7 values: what the simulator knows and a policy must infer: the joint speeds, each cube's velocities, the
+    fingertips relative to cube A and whether A is held (the grasp the reward shapes). ``cubes``: name -> asset view,
+    cube A first; a term named as one of ``observed`` (the policy's, which the critic reads too) is left out."""
+    cube_a = next(iter(cubes.values()))
+
+    def tips_to_cube() -> torch.Tensor:
+        left, right = fingertips(arm)
+        return torch.cat((left - cube_a.root_pos, right - cube_a.root_pos), dim=1)
+
+    terms = [ObsTerm("dof_vel", 9, scale=0.1, compute=lambda: arm.sim.dof_vel)]          # rad/s; fingers m/s
+    for name, cube in cubes.items():
+        terms += [ObsTerm(f"{name}_lin_vel", 3, compute=lambda c=cube: c.root_lin_vel),  # m/s, world frame
+                  ObsTerm(f"{name}_ang_vel", 3, compute=lambda c=cube: c.root_ang_vel)]  # rad/s, cube frame
+    terms += [ObsTerm("fingertips_to_cube", 6, compute=tips_to_cube),                     # m, left and right tip - A
+              ObsTerm("held", 1, compute=lambda: grasp_terms(cube_a.root_pos, arm.grasp_pos(),
+                                                             arm.sim.dof_pos[:, 7])["held"].unsqueeze(1))]  # 0 / 1
+    seen = {term.name for term in observed}
+    return [term for term in terms if term.name not in seen]
+
