@@ -160,3 +160,22 @@ def test_test_mode_reports_distance_and_reached_target_by_the_distance_at_the_ep
     env.reset_idx(mask)
     assert env.extras["episode_outcomes"]["reached_target"].tolist() == [0.0, 1.0]
     env.record_eval_metrics = False
+
+
+def test_spin_is_capped_at_max_angular_velocity_with_its_direction_kept(env):
+    # PhysX's default cap on a rigid body's angular speed, applied by the task once per policy step.
+    mask = torch.ones(2, dtype=torch.bool)
+    env.reset_idx(mask)
+    env.sim.write_state(mask, root_ang_vel=torch.tensor([[300.0, 400.0, 0.0], [1.0, -2.0, 2.0]]))
+    env.fresh.zero_()
+    env.pre_physics_step(torch.zeros(2, 12))
+    spin = env.sim.root_ang_vel.clone()
+    assert torch.linalg.norm(spin[0]).item() == pytest.approx(env.max_angular_velocity, rel=1e-5)
+    assert torch.allclose(spin[0] / torch.linalg.norm(spin[0]), torch.tensor([0.6, 0.8, 0.0]), atol=1e-6)
+    assert torch.linalg.norm(spin[1]).item() == pytest.approx(3.0, rel=1e-5)  # slower than the cap: unchanged
+    assert env.max_angular_velocity == 100.0
+
+
+def test_max_angular_velocity_must_be_positive():
+    with pytest.raises(ConfigError, match=r"^task\.env\.maxAngularVelocity=0\.0 is invalid: give a number > 0"):
+        make("Quadcopter", num_envs=1, overrides=("task.env.maxAngularVelocity=0",))

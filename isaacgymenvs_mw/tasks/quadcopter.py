@@ -21,6 +21,7 @@ import math
 
 import torch
 
+from isaacgymenvs_mw.tasks.base.env_keys import positive_env_number
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -32,6 +33,10 @@ REACHED_DISTANCE = 0.1              # m: test mode's reached_target, the craft's
 MAX_THRUST = 2.0                    # N per rotor (IGE's max_thrust)
 DOF_ACTION_SPEED_SCALE = 8 * math.pi  # rad/s at action 1 (IGE)
 THRUST_ACTION_SPEED_SCALE = 200.0     # N/s at action 1 (IGE)
+# PhysX, IGE's engine, clamps each rigid body's angular speed (PxRigidBody::setMaxAngularVelocity, 100 rad/s by
+# default); MuJoCo does not, and a craft spun up by held full-thrust rotor tilts reached thousands of rad/s, where its
+# rotor hinges diverged. The same cap, applied once per policy step (env.maxAngularVelocity).
+MAX_ANGULAR_VELOCITY = 100.0          # rad/s
 
 
 class Quadcopter(VecTask):
@@ -57,6 +62,7 @@ class Quadcopter(VecTask):
         self.thrusts = torch.zeros((n, 4), device=dev)
         self.forces = torch.zeros((n, 4, 3), device=dev)
         self.fresh = torch.ones(n, dtype=torch.bool, device=dev)  # first step of an episode: IGE applies no action
+        self.max_angular_velocity = positive_env_number(env, "maxAngularVelocity", MAX_ANGULAR_VELOCITY)
         self.target = torch.tensor(TARGET, device=dev)
         self.initial_root_pos = self.sim.root_pos[0].clone()
         self.initial_root_quat = self.sim.root_quat[0].clone()
@@ -83,6 +89,9 @@ class Quadcopter(VecTask):
         self.thrusts.copy_(torch.where(fresh, torch.zeros_like(thrusts), thrusts))
         self.fresh.zero_()
         self.forces[:, :, 2] = self.thrusts
+        spin = self.sim.root_ang_vel  # a view of qvel: scaled in place, its direction kept
+        speed = torch.linalg.norm(spin, dim=1, keepdim=True).clamp(min=1e-9)
+        spin.mul_((self.max_angular_velocity / speed).clamp(max=1.0))
         self.sim.ctrl[:, :8] = self.dof_position_targets
         self.apply_body_forces(self.forces, bodies=self.rotor_bodies, frame="body")
 
