@@ -125,15 +125,11 @@ class VecTask:
         """What ``create_sim`` asks the sim layer to build: ``env.asset``, ``env.assets``, ``env.control``,
         ``env.plane``, ``env.baseInitState`` and ``sim`` (``sim.request.request_from_config``); tasks may extend it
         (more contact bodies, per-world fields, ...)."""
-        request, self._torque_speed = request_from_config(self.cfg["env"], self.cfg.get("sim", {}),
-                                                          self.cfg.get("yaml_dir"), ASSETS_DIR)
-        return request
+        return request_from_config(self.cfg["env"], self.cfg.get("sim", {}), self.cfg.get("yaml_dir"), ASSETS_DIR)
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         sim = self.cfg.get("sim", {})
-        # The randomised quantities' fields, and the force ranges a torque-speed limit rewrites, are per world.
-        fields = tuple(per_world_fields) + self.randomizer.per_world_fields()
-        fields += ("actuator_forcerange",) if getattr(self, "_torque_speed", None) else ()
+        fields = tuple(per_world_fields) + self.randomizer.per_world_fields()  # the randomised quantities'
         return Simulator(
             build_model(request),
             num_worlds=self.num_environments,
@@ -146,16 +142,11 @@ class VecTask:
             deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
             cameras=request.cameras,
             sensors=request.all_sensors(),
+            torque_speed=request.torque_speed,
         )
 
     def _setup_randomization(self) -> None:
-        """Actuator realism (torque-speed limit, action delay) and the randomisation layer, on the built model."""
-        limits = getattr(self, "_torque_speed", {})
-        if limits:
-            m = self.sim.mj_model
-            joint_of = [m.joint(int(j)).name for j in m.actuator_trnid[:, 0]]
-            params = np.array([limits.get(j, (math.inf,) * 3) for j in joint_of], dtype=np.float64).reshape(-1, 3)
-            self.sim.enable_torque_speed_limit(params[:, 0], params[:, 1], params[:, 2])
+        """The randomisation layer and the action delay, on the built model."""
         self.randomizer.bind(self.sim)
         delay = self.cfg["env"].get("control", {}).get("actionDelay", 0)
         self.randomizer.setup_delay(whole_number(delay, "env.control.actionDelay", 0), self.num_actions)
