@@ -7,10 +7,10 @@ were what a step cost beyond the physics. So, on CUDA:
   * after a few eager warm-up steps, the pre- and post-physics work are captured as two CUDA graphs
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
 Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
-VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics,
-sense (the sensors' refresh after the step's resets: the cameras render there, with Warp graphs of their own), and,
-when the task observes camera images, the image observation (torch), so that images show the state after the
-resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
+VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics
+(whose sequence refreshes the computed sensors, ``Simulator.sense()``), render (the cameras, after the step's resets,
+with Warp graphs of their own), and, when the task observes camera images, the image observation (torch), so that
+images show the state after the resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
 (``ImageStack``), so it is captured twice, once per buffer, and each step replays the one for its parity.
 
 Start-up: compiling the post-physics step (Inductor and Triton code generation, tens of seconds with cold caches)
@@ -52,7 +52,7 @@ class StepPhases:
     before: Callable[[torch.Tensor], None]  # torch: clipped actions -> actuator commands (captured)
     physics: Callable[[], None]  # the simulator's controlFrequencyInv physics steps (its own graph)
     after: Callable[[], None]  # torch: terminations, reward, resets, observations (compiled, captured)
-    sense: Callable[[int], None]  # the sensors' refresh after the resets (Warp, with graphs of its own)
+    render: Callable[[int], None]  # the cameras' render after the resets (Warp, with graphs of its own)
     observe_images: Callable[[int], None] | None = None  # torch: the image observation (captured per parity)
 
 
@@ -102,14 +102,14 @@ class StepExecution:
             before.replay()
             self.physics()
             after.replay()
-            self.phases.sense(self.steps)
+            self.phases.render(self.steps)
             if self.phases.observe_images is not None:
                 self.graphs[2 + self.steps % 2].replay()
         else:
             self.before(actions)
             self.physics()
             self.after()
-            self.phases.sense(self.steps)
+            self.phases.render(self.steps)
             if self.phases.observe_images is not None:
                 self.phases.observe_images(self.steps)
         self.steps += 1

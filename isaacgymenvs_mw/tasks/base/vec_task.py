@@ -169,8 +169,8 @@ class VecTask:
         self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         images = None if self.observations.images is None else self._observe_images
         self.execution = StepExecution(
-            type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics, self._sense,
-                                            images), self.cfg.get("sim", {}),
+            type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics,
+                                            self._render_cameras, images), self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
             action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
         )
@@ -435,8 +435,8 @@ class VecTask:
         self.nonfinite_inputs_buf.copy_(bad)
         self.nonfinite_inputs_count += bad.sum()
 
-    def _sense(self, step: int) -> None:
-        """The sense phase, after the step's resets (and after a reset): the sensors show the state the observation
+    def _render_cameras(self, step: int) -> None:
+        """The render phase, after the step's resets (and after a reset): the images show the state the observation
         describes. The cameras render (Warp, one graph on CUDA) every ``env.renderInterval`` steps (a host counter:
         no sync); between renders their images stay those of the last one."""
         if step % self.render_interval == 0:
@@ -472,9 +472,9 @@ class VecTask:
         return self._reset_outputs(done), done.nonzero(as_tuple=False).flatten()
 
     def _reset_outputs(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The observations after a reset, through the step's own sense phase; ``new_episode`` envs forget their
+        """The observations after a reset, through the step's own render phase; ``new_episode`` envs forget their
         past frames."""
-        self._sense(self.execution.steps)
+        self._render_cameras(self.execution.steps)
         return self.observations.reset_outputs(self.obs_dict, new_episode, self.execution.steps)
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
