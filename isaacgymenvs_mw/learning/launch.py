@@ -217,8 +217,8 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
     observations = task.observations
     beside = None if observations.images is None else (
         lambda: observations.camera_picture(task.control_steps).cpu().numpy())
-    task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
-                                        beside=beside)
+    task.display.record(VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
+                                      beside=beside))
     print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)
 
 

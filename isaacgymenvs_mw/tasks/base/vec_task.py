@@ -22,28 +22,28 @@ from __future__ import annotations
 
 import contextlib
 import math
-from pathlib import Path
 from typing import Any, Iterator
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
+from isaacgymenvs_mw.sim import ModelRequest, Simulator, check_sim_keys, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
+from isaacgymenvs_mw.tasks.base.display import Display
 from isaacgymenvs_mw.tasks.base.env_keys import (episode_length, positive_env_number, refuse_removed_keys, require_int,
                                                   warn_unused_ige_keys)
+from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
 from isaacgymenvs_mw.tasks.base.history import parse_history
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
 from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
-
-ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
 class VecTask:
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
@@ -53,6 +53,10 @@ class VecTask:
     # Test mode (learning/runner.evaluate) sets it: a task then adds per-step, per-env metrics to
     # extras["eval_metrics"] (the legged tasks' velocity tracking error, the runners' forward speed).
     record_eval_metrics: bool = False
+    # IsaacGymEnvs' names for the buffers of ``self.episode`` (tasks/base/episode.py), read and written by tasks.
+    rew_buf, reset_buf, timeout_buf, progress_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
+    terminate_buf, success_buf, nonfinite_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
+    nonfinite_inputs_buf, nonfinite_inputs_count = EpisodeBuffer(), EpisodeBuffer()
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
@@ -97,12 +101,9 @@ class VecTask:
         self.max_episode_length, self.max_episode_length_s = episode_length(
             env, self.control_dt, getattr(self, "max_episode_length", None))
         self.check_action_size()
-        self.blowups = BlowupLog(self.sim)  # which joint ran away: named by the periodic check in step()
         self._setup_randomization()
-
-        self.viewer = None
-        self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
-        self.set_viewer()
+        self.display = Display(self.sim, headless)
+        self.headless = self.display.headless
         self.observations = Observations(
             type(self).__name__, self.num_envs, self.device, self.rl_device, num_obs, num_states, self.clip_obs,
             history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
@@ -125,25 +126,12 @@ class VecTask:
         """What ``create_sim`` asks the sim layer to build: ``env.asset``, ``env.assets``, ``env.control``,
         ``env.plane``, ``env.baseInitState`` and ``sim`` (``sim.request.request_from_config``); tasks may extend it
         (more contact bodies, per-world fields, ...)."""
-        return request_from_config(self.cfg["env"], self.cfg.get("sim", {}), self.cfg.get("yaml_dir"), ASSETS_DIR)
+        return yaml_model_request(self.cfg)
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
-        sim = self.cfg.get("sim", {})
-        fields = tuple(per_world_fields) + self.randomizer.per_world_fields()  # the randomised quantities'
-        return Simulator(
-            build_model(request),
-            num_worlds=self.num_environments,
-            device=self.sim_device,
-            substeps=self.control_freq_inv,
-            nconmax=sim.get("nconmax"),
-            njmax=sim.get("njmax"),
-            per_world_fields=tuple(dict.fromkeys(fields)),
-            use_graphs=sim.get("useGraphs"),
-            deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
-            cameras=request.cameras,
-            sensors=request.all_sensors(),
-            torque_speed=request.torque_speed,
-        )
+        """The Simulator of ``request``, with ``per_world_fields`` and the randomised quantities' fields per world."""
+        return build_simulator(self.cfg, request, self.num_environments, self.sim_device, self.control_freq_inv,
+                               tuple(per_world_fields) + self.randomizer.per_world_fields())
 
     def _setup_randomization(self) -> None:
         """The randomisation layer and the action delay, on the built model."""
@@ -153,20 +141,12 @@ class VecTask:
 
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
-        self.rew_buf = torch.zeros(n, device=dev, dtype=torch.float)
-        self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
-        self.timeout_buf = torch.zeros(n, device=dev, dtype=torch.long)
-        self.progress_buf = torch.zeros(n, device=dev, dtype=torch.long)
+        self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim))
         self.extras: dict[str, Any] = {}
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
-        self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
-        self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
-        self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
         # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
         # timeout_buf; a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
         self._shared_sequence = type(self).post_physics_step is VecTask.post_physics_step
-        self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
-        self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         images = None if self.observations.images is None else self._observe_images
         self.execution = StepExecution(
             type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics,
@@ -174,16 +154,6 @@ class VecTask:
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
             action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
         )
-
-    def set_viewer(self) -> None:
-        """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
-        if self.headless:
-            return
-        from isaacgymenvs_mw.sim.viewer import open_viewer  # deferred: only interactive runs need GLFW
-
-        self.viewer = open_viewer(self.sim)
-        if self.viewer is None:
-            self.headless = True
 
     # -------------------------------------------------------------- properties
     @property
@@ -284,19 +254,13 @@ class VecTask:
         # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
         self.terminate_buf.copy_(self.check_termination() | self.nonfinite_buf)
         self.success_buf.copy_(self.check_success() & ~self.terminate_buf)
-        timeout = self.timed_out(self.progress_buf)
-        self.timeout_buf.copy_(timeout & ~self.nonfinite_buf)
-        self.reset_buf.copy_(self.terminate_buf | self.success_buf | timeout)
+        self.episode.close_step()  # time-outs, and which episodes end
         self.compute_reward()
         new_episode = self.reset_buf != 0
         self.reset_envs(new_episode)
         self.after_reset(new_episode)
         self.sim.sense()
         self.compute_observations()
-
-    def timed_out(self, episode_step: torch.Tensor) -> torch.Tensor:
-        """(num_envs,) bool: episodes at their time limit after ``episode_step`` steps (the one formula of it)."""
-        return episode_step >= self.max_episode_length - 1
 
     def refresh_state(self) -> None:
         """Derive, after the physics, the quantities the terms read (base velocities, contact forces, ...)."""
@@ -321,7 +285,7 @@ class VecTask:
         mask = self.env_mask(env_ids)
         self.randomizer.on_reset(mask)
         self.reset_idx(mask)
-        self.progress_buf.masked_fill_(mask, 0)  # the episode clock is VecTask's: reset_idx only places things
+        self.episode.restart(mask)
         if self.reports_success:
             success = (self.success_buf & mask).float()
             self.extras.setdefault("episode_metrics", {})["success"] = success.sum()
@@ -369,20 +333,13 @@ class VecTask:
         with self._step_extras():
             self.execution.run(actions)  # the step's phases: eager, compiled or captured
 
-        # The learner bootstraps the value of the episodes in "time_outs": time-outs and successes.
-        self.extras["time_outs"] = (self.timeout_buf | self.success_buf).to(self.rl_device)
-        self.extras["successes"] = self.success_buf.to(self.rl_device)
-        self.extras["nonfinite_resets"] = self.nonfinite_buf
-        self.extras["nonfinite_inputs"] = self.nonfinite_inputs_buf
+        self.extras.update(self.episode.step_extras(self.rl_device))
         self.observations.step_outputs(self.obs_dict, self.execution.steps)
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
-            self.blowups.poll(self.overflow_check_interval)
-        if self.viewer is not None:
-            self.render()
-        if self.video_recorder is not None:
-            self.video_recorder.capture(self.control_steps)
+            self.episode.blowups.poll(self.overflow_check_interval)
+        self.display.show(self.control_dt, self.control_steps)
         return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
 
     @contextlib.contextmanager
@@ -404,36 +361,10 @@ class VecTask:
 
     def _after_physics(self) -> None:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
-        # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
-        # its episode restarts and the step is reported as a termination, so training goes on.
-        blown_up = self.blowups.reset_nonfinite()
-        self.progress_buf.masked_fill_(blown_up, 0)
-        # Tasks read it while computing rewards: quantities the physics derives from the state (body positions and
-        # velocities) are still non-finite in those worlds until the next physics step.
-        self.nonfinite_buf.copy_(blown_up)
-
-        # post_physics_step adds one to progress_buf and may reset envs (which zeroes it); the step count at
-        # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
-        episode_step = self.progress_buf + 1
-        self.post_physics_step()
-        # The blown-up step earns nothing and its env starts the next step at progress 0, like any reset env.
-        self.rew_buf.masked_fill_(blown_up, 0.0)
-        self.progress_buf.masked_fill_(blown_up, 0)
-        self.reset_buf |= blown_up
-        if self._shared_sequence:  # post_physics_step set timeout_buf by the task's clock (which a task may move)
-            self.timeout_buf &= (self.reset_buf != 0) & ~blown_up
-        else:  # a ported post_physics_step resets envs itself: their step count is taken from before it ran
-            self.timeout_buf.copy_(self.timed_out(episode_step) & (self.reset_buf != 0) & ~blown_up)
+        self.episode.after_physics(self.post_physics_step, self._shared_sequence)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
-        # The learner's last line of defence: a NaN or inf that escaped the blow-up reset (a term dividing by a zero
-        # distance, a quantity the reset does not refresh) would make one sample's loss NaN and, through one Adam
-        # step, every weight. Such values become 0 and their worlds are counted (extras["nonfinite_inputs"]).
-        bad = ~torch.isfinite(self.rew_buf)
-        torch.nan_to_num(self.rew_buf, nan=0.0, posinf=0.0, neginf=0.0, out=self.rew_buf)
-        bad |= self.observations.finish_step(self.reset_buf != 0)  # an env reset in this step starts its history
-        self.nonfinite_inputs_buf.copy_(bad)
-        self.nonfinite_inputs_count += bad.sum()
+        self.episode.guard_inputs(self.observations.finish_step)  # an env reset in this step starts its history
 
     def _render_cameras(self, step: int) -> None:
         """The render phase, after the step's resets (and after a reset): the images show the state the observation
@@ -489,17 +420,11 @@ class VecTask:
 
     # --------------------------------------------------------------- rendering
     def render(self, mode: str = "rgb_array") -> None:
-        if self.viewer is not None and not self.viewer.sync(self.control_dt):
-            self.viewer = None  # the user closed the window: keep training
-        return None
+        """IsaacGymEnvs' render: the viewer (``self.display``, tasks/base/display.py) shows env 0."""
+        self.display.sync_viewer(self.control_dt)
 
     def close(self) -> None:
-        if self.video_recorder is not None:
-            self.video_recorder.close()  # writes out a clip in progress
-            self.video_recorder = None
-        if self.viewer is not None:
-            self.viewer.close()
-            self.viewer = None
+        self.display.close()
 
     # ------------------------------------------------------ forces on bodies (IsaacGym's force tensors)
     def apply_body_forces(self, forces: torch.Tensor | None = None, torques: torch.Tensor | None = None,
