@@ -24,7 +24,7 @@ from isaacgymenvs_mw.learning.runner import (
     rsl_rl_config,
     write_json,
 )
-from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
 from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
@@ -132,6 +132,7 @@ def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, st
         "mean_episode_length": means.get("mean_episode_length"),
         "timeout_fraction": means.get("timeout_fraction"),
         **episode_metrics(means),  # what the task declares, by name (terrain_level on the terrain tasks)
+        "metrics": training_metric_keys(task),  # their history keys, in the task's order (the sweep's "auto")
         "nonfinite_resets": runner.nonfinite_resets,
         **runner.learner_health(),  # optimiser steps skipped, states restored
         "device": device_description(task.sim_device),

@@ -36,6 +36,7 @@ from isaacgymenvs_mw.tasks.base.env_keys import (episode_length, positive_env_nu
                                                   warn_unused_ige_keys)
 from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
 from isaacgymenvs_mw.tasks.base.history import parse_history
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
@@ -45,14 +46,15 @@ from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.device import resolve_device
 
+SUCCESS_RATE = Metric("success", EPISODE_SUM)
+SUCCESS = Metric("success", OUTCOME)
+
+
 class VecTask:
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
-    # True: the episodes that end by ``check_success`` are counted as successes, logged as Episode/success (the rate
-    # over ended episodes) and in test mode's eval "success" (each env's first episode).
+    # True: the episodes that end by ``check_success`` are counted as successes, the metrics SUCCESS_RATE (logged as
+    # Episode/success, the rate over ended episodes) and SUCCESS (test mode's eval "success", each env's first episode).
     reports_success: bool = False
-    # Test mode (learning/runner.evaluate) sets it: a task then adds per-step, per-env metrics to
-    # extras["eval_metrics"] (the legged tasks' velocity tracking error, the runners' forward speed).
-    record_eval_metrics: bool = False
     # IsaacGymEnvs' names for the buffers of ``self.episode`` (tasks/base/episode.py), read and written by tasks.
     rew_buf, reset_buf, timeout_buf, progress_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
     terminate_buf, success_buf, nonfinite_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
@@ -143,6 +145,7 @@ class VecTask:
         n, dev = self.num_envs, self.device
         self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim))
         self.extras: dict[str, Any] = {}
+        self.metrics = TaskMetrics(self.declared_metrics)  # recorded by the task's step, read by learning/
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
         # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
         # timeout_buf; a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
@@ -277,19 +280,24 @@ class VecTask:
     def compute_reward(self) -> None:
         raise NotImplementedError(hook_message(type(self), "compute_reward"))
 
+    def declared_metrics(self) -> list[Metric]:
+        """What the task reports beyond its reward (tasks/base/metrics.py), recorded in its step with
+        ``self.metrics.record(metric, value)``; read once, before the first step. Tasks add theirs to these."""
+        return [SUCCESS_RATE, SUCCESS] if self.reports_success else []
+
     def reset_envs(self, env_ids: torch.Tensor) -> None:
         """Reset the selected envs: the randomisation layer draws their new model values first (so the task's
         reset sees the world it will run in), then the task's ``reset_idx``; the reward helper, when the task has
         one, reports their episode sums (``extras["episode_terms"]``), and, with ``reports_success``, which of them
-        succeeded."""
+        succeeded (the metrics SUCCESS_RATE and SUCCESS)."""
         mask = self.env_mask(env_ids)
         self.randomizer.on_reset(mask)
         self.reset_idx(mask)
         self.episode.restart(mask)
         if self.reports_success:
             success = (self.success_buf & mask).float()
-            self.extras.setdefault("episode_metrics", {})["success"] = success.sum()
-            self.extras.setdefault("episode_outcomes", {})["success"] = success
+            self.metrics.record(SUCCESS_RATE, success.sum())
+            self.metrics.record(SUCCESS, success)
         if self.rewards is not None:
             self.extras["episode_terms"] = self.rewards.finish_episodes(mask)
 
@@ -330,6 +338,7 @@ class VecTask:
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
+        self.metrics.begin_step()
         with self._step_extras():
             self.execution.run(actions)  # the step's phases: eager, compiled or captured
 
@@ -387,6 +396,7 @@ class VecTask:
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
         self._built_observations()
+        self.metrics.begin_step()
         self.reset_envs(self._all_envs)
         self.sim.sense()
         self.observations.compute_checked(self.compute_observations)
@@ -396,6 +406,7 @@ class VecTask:
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
+        self.metrics.begin_step()
         self.reset_envs(done)
         self.sim.sense()
         self.compute_observations()
