@@ -37,9 +37,13 @@ class Episode:
     """Per-env episode state on ``device``: reward, resets, time-outs, terminations, successes, the step counter and
     the worlds whose state or inputs were not finite. ``max_episode_length``: policy steps of the time limit."""
 
-    def __init__(self, num_envs: int, device: str, max_episode_length: int, blowups: BlowupLog) -> None:
+    def __init__(self, num_envs: int, device: str, max_episode_length: int, blowups: BlowupLog,
+                 shared_sequence: bool = True) -> None:
         n, dev = num_envs, device
         self.max_episode_length = max_episode_length
+        # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
+        # timeout_buf (close_step); a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
+        self.shared_sequence = shared_sequence
         self.blowups = blowups  # which joint ran away: named by VecTask's periodic check
         self.rew_buf = torch.zeros(n, device=dev, dtype=torch.float)
         self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
@@ -51,13 +55,26 @@ class Episode:
         self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
         self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
 
+    def mask(self, env_ids: torch.Tensor) -> torch.Tensor:
+        """A boolean (num_envs,) mask from a mask or an index tensor (IsaacGymEnvs passes indices)."""
+        if env_ids.dtype == torch.bool:
+            return env_ids
+        mask = torch.zeros_like(self.nonfinite_buf)
+        mask[env_ids.to(mask.device, torch.long)] = True
+        return mask
+
     def timed_out(self, episode_step: torch.Tensor) -> torch.Tensor:
         """(num_envs,) bool: episodes at their time limit after ``episode_step`` steps (the one formula of it)."""
         return episode_step >= self.max_episode_length - 1
 
-    def close_step(self) -> None:
-        """After the terminations and successes of the step: which episodes time out (a blown-up world's does not)
-        and which end. The clock read is the task's ``progress_buf``, which a task may move (AllegroHand does)."""
+    def close_step(self, check_termination: Callable[[], torch.Tensor],
+                   check_success: Callable[[], torch.Tensor]) -> None:
+        """Which episodes end in this step, and how: the task's terminations (``check_termination``) and blown-up
+        worlds, its successes (``check_success``), and the time-outs (a blown-up world's is none). The clock read is
+        the task's ``progress_buf``, which a task may move (AllegroHand does)."""
+        # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
+        self.terminate_buf.copy_(check_termination() | self.nonfinite_buf)
+        self.success_buf.copy_(check_success() & ~self.terminate_buf)
         timeout = self.timed_out(self.progress_buf)
         self.timeout_buf.copy_(timeout & ~self.nonfinite_buf)
         self.reset_buf.copy_(self.terminate_buf | self.success_buf | timeout)
@@ -66,10 +83,10 @@ class Episode:
         """The envs of ``mask`` start a new episode: the clock is VecTask's, a task's ``reset_idx`` only places."""
         self.progress_buf.masked_fill_(mask, 0)
 
-    def after_physics(self, post_physics_step: Callable[[], None], shared_sequence: bool) -> None:
-        """Run ``post_physics_step`` around the blow-up handling. ``shared_sequence``: it is VecTask's, which sets
-        the time-outs by the task's clock (``close_step``); otherwise a ported IsaacGymEnvs ``post_physics_step``
-        resets envs itself, and their step count is taken from before it ran."""
+    def after_physics(self, post_physics_step: Callable[[], None]) -> None:
+        """Run ``post_physics_step`` around the blow-up handling. With the shared sequence it sets the time-outs by
+        the task's clock (``close_step``); a ported IsaacGymEnvs ``post_physics_step`` resets envs itself, and their
+        step count is taken from before it ran."""
         # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
         # its episode restarts and the step is reported as a termination, so training goes on.
         blown_up = self.blowups.reset_nonfinite()
@@ -86,7 +103,7 @@ class Episode:
         self.rew_buf.masked_fill_(blown_up, 0.0)
         self.progress_buf.masked_fill_(blown_up, 0)
         self.reset_buf.bitwise_or_(blown_up)
-        if shared_sequence:
+        if self.shared_sequence:
             self.timeout_buf.bitwise_and_((self.reset_buf != 0) & ~blown_up)
         else:
             self.timeout_buf.copy_(self.timed_out(episode_step) & (self.reset_buf != 0) & ~blown_up)

@@ -38,6 +38,12 @@ class Metric:
             raise ValueError(f"Metric {self.name!r}: kind {self.kind!r}; valid: {', '.join(METRIC_KINDS)}")
 
 
+# VecTask's, for a task with ``reports_success``: the rate over ended episodes (Episode/success) and each env's first
+# episode's success (eval.json "success").
+SUCCESS_RATE = Metric("success", EPISODE_SUM)
+SUCCESS = Metric("success", OUTCOME)
+
+
 class TaskMetrics:
     """The metrics a task declares (``declare``: its ``declared_metrics`` hook, read once, outside the step) and the
     values recorded in the current step. ``evaluating``: test mode is on (``PER_STEP`` metrics are wanted)."""
@@ -81,6 +87,13 @@ class TaskMetrics:
         if key not in self._declared_keys():
             raise ValueError(f"metrics.record: {metric} is not among the task's declared_metrics()")
         self.values[key] = value
+
+    def record_successes(self, succeeded: torch.Tensor) -> None:
+        """VecTask's SUCCESS_RATE and SUCCESS of the episodes that end in this step, ``succeeded`` ((num_envs,) bool)
+        marking those that ended by reaching the goal."""
+        success = succeeded.float()
+        self.record(SUCCESS_RATE, success.sum())
+        self.record(SUCCESS, success)
 
     def recorded(self, kind: str) -> dict[str, torch.Tensor]:
         """{name: value} of the metrics of ``kind`` recorded in the last step, in the order they were recorded."""

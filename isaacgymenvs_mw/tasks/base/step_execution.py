@@ -27,13 +27,14 @@ call instead, as before.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 import time
 import types
 import warnings
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterator
 
 import torch
 
@@ -54,6 +55,21 @@ class StepPhases:
     after: Callable[[], None]  # torch: terminations, reward, resets, observations (compiled, captured)
     render: Callable[[int], None]  # the cameras' render after the resets (Warp, with graphs of its own)
     observe_images: Callable[[int], None] | None = None  # torch: the image observation (captured per parity)
+
+
+@contextlib.contextmanager
+def fresh_dict(owner: object, name: str) -> Iterator[None]:
+    """The step's torch work writes into an empty dict ``owner.<name>`` (VecTask's ``extras``), merged into the
+    run's afterwards. torch.compile guards on every entry of a dict the compiled step writes into, and the run's
+    entries are remade by each step (as inference tensors in training): guarded, they would make the first steps
+    compile the step again."""
+    kept = getattr(owner, name)
+    setattr(owner, name, {})
+    try:
+        yield
+    finally:
+        kept.update(getattr(owner, name))
+        setattr(owner, name, kept)
 
 
 class StepExecution:

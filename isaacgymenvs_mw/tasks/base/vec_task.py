@@ -11,43 +11,35 @@ A task writes the terms of that sequence, not the sequence (``tasks/base/contrac
 
 Resets are boolean masks (an index tensor, as IsaacGymEnvs passes, is turned into one): ``nonzero()`` would make
 the step wait on the GPU. On CUDA the step's torch work is compiled and captured (``step_execution.py``), so the
-hooks stay device-only tensor code. A world that blew up (NaN/inf, or a speed past ``DIVERGED_SPEED``) is put back
-in the model's initial pose and marked in ``nonfinite_buf``; the sequence counts it as a termination (the task's
-``reset_idx`` places it, its reward is zeroed; ``sim.stability.BlowupLog`` names the joint that ran away).
+hooks stay device-only tensor code. The episode's buffers, its clock and blown-up worlds: ``episode.py`` (a blown-up
+world, marked in ``nonfinite_buf``, is a termination: the task's ``reset_idx`` places it, its reward is zeroed).
 A ported IsaacGymEnvs task may still override ``post_physics_step``; it then calls ``reset_envs(mask)`` itself, and
 ``self.sim.sense()`` before observing when it reads a computed sensor (IsaacGym's ``refresh_*_tensor``).
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
-from typing import Any, Iterator
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.sim import ModelRequest, Simulator, check_sim_keys, sim_dt
+from isaacgymenvs_mw.sim import ModelRequest, Simulator, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
 from isaacgymenvs_mw.tasks.base.display import Display
-from isaacgymenvs_mw.tasks.base.env_keys import (episode_length, positive_env_number, refuse_removed_keys, require_int,
-                                                  warn_unused_ige_keys)
+from isaacgymenvs_mw.tasks.base.env_keys import episode_length, task_settings
 from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
-from isaacgymenvs_mw.tasks.base.history import parse_history
-from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, Metric, TaskMetrics
+from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
-from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases
-from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases, fresh_dict
 from isaacgymenvs_mw.utils.device import resolve_device
-
-SUCCESS_RATE = Metric("success", EPISODE_SUM)
-SUCCESS = Metric("success", OUTCOME)
 
 
 class VecTask:
@@ -65,34 +57,20 @@ class VecTask:
         # graphics_device_id, virtual_screen_capture and force_render are IsaacGymEnvs' signature; nothing here uses
         # them (headless=False opens MuJoCo's viewer; capture_video records).
         self.cfg = config
-        env = config["env"]
         check_required_hooks(type(self), VecTask)
-        refuse_removed_keys(env)
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
         self.device = self.sim_device
-        self.headless = headless
-
-        self.num_environments = require_int(env, "numEnvs", minimum=1)
-        # A task that declares its observation terms derives these sizes; a YAML value must then agree.
         declares_layout = type(self).observation_terms is not VecTask.observation_terms
-        num_obs = require_int(env, "numObservations", minimum=1, default=0 if declares_layout else None)
-        num_states = None if env.get("numStates") is None else require_int(env, "numStates", minimum=0)
-        self.num_actions = require_int(env, "numActions", minimum=1)
-        self.control_freq_inv = require_int(env, "controlFrequencyInv", minimum=1, default=1)
-        self.clip_obs = positive_env_number(env, "clipObservations", math.inf)
-        self.clip_actions = positive_env_number(env, "clipActions", math.inf)
-        history = parse_history(env)
-        self.render_interval = require_int(env, "renderInterval", minimum=1, default=1)
+        settings = task_settings(config, declares_layout)
+        self.num_environments, self.num_actions = settings.num_envs, settings.num_actions
+        self.control_freq_inv, self.render_interval = settings.control_freq_inv, settings.render_interval
+        self.clip_obs, self.clip_actions = settings.clip_obs, settings.clip_actions
+        self.overflow_check_interval = settings.overflow_check_interval
         self.act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
 
-        sim_cfg = config.get("sim", {})
-        check_sim_keys(sim_cfg)
-        warn_unused_ige_keys(env)
-        self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
-
         # Parsed before the model is built: it decides which Model fields get one value per world.
-        self.randomizer = Randomizer(config.get("task"), sim_dt(sim_cfg) * self.control_freq_inv,
+        self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
                                      self.num_environments, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
@@ -101,14 +79,15 @@ class VecTask:
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
         self.max_episode_length, self.max_episode_length_s = episode_length(
-            env, self.control_dt, getattr(self, "max_episode_length", None))
+            config["env"], self.control_dt, getattr(self, "max_episode_length", None))
         self.check_action_size()
-        self._setup_randomization()
+        self.randomizer.bind(self.sim)  # the randomisation layer, on the built model
+        self.randomizer.setup_delay(settings.action_delay, self.num_actions)
         self.display = Display(self.sim, headless)
         self.headless = self.display.headless
         self.observations = Observations(
-            type(self).__name__, self.num_envs, self.device, self.rl_device, num_obs, num_states, self.clip_obs,
-            history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
+            type(self).__name__, self.num_envs, self.device, self.rl_device, settings.num_obs, settings.num_states,
+            self.clip_obs, settings.history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
         self.allocate_buffers()
         # Warp's kernels have been compiling in the background since create_sim: wait for them now, or, with a compiled
         # step, at the first step, while the step compiles (StepExecution.run).
@@ -135,21 +114,13 @@ class VecTask:
         return build_simulator(self.cfg, request, self.num_environments, self.sim_device, self.control_freq_inv,
                                tuple(per_world_fields) + self.randomizer.per_world_fields())
 
-    def _setup_randomization(self) -> None:
-        """The randomisation layer and the action delay, on the built model."""
-        self.randomizer.bind(self.sim)
-        delay = self.cfg["env"].get("control", {}).get("actionDelay", 0)
-        self.randomizer.setup_delay(whole_number(delay, "env.control.actionDelay", 0), self.num_actions)
-
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
-        self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim))
+        self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim),
+                               shared_sequence=type(self).post_physics_step is VecTask.post_physics_step)
         self.extras: dict[str, Any] = {}
         self.metrics = TaskMetrics(self.declared_metrics)  # recorded by the task's step, read by learning/
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
-        # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
-        # timeout_buf; a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
-        self._shared_sequence = type(self).post_physics_step is VecTask.post_physics_step
         images = None if self.observations.images is None else self._observe_images
         self.execution = StepExecution(
             type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics,
@@ -231,7 +202,7 @@ class VecTask:
     def compute_observations(self) -> None:
         """Fill ``obs_buf`` (and ``states_buf``) from the declared terms; a task without terms overrides this."""
         if self.observations.obs_layout is None:
-            raise NotImplementedError(self.missing_hook_message("compute_observations"))
+            raise NotImplementedError(hook_message(type(self), "compute_observations"))
         self.observations.compute()
 
     def deployment_info(self) -> dict[str, Any]:
@@ -254,10 +225,7 @@ class VecTask:
         """The after-physics sequence every task shares; tasks fill its terms (module docstring), not the order."""
         self.progress_buf += 1
         self.refresh_state()
-        # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
-        self.terminate_buf.copy_(self.check_termination() | self.nonfinite_buf)
-        self.success_buf.copy_(self.check_success() & ~self.terminate_buf)
-        self.episode.close_step()  # time-outs, and which episodes end
+        self.episode.close_step(self.check_termination, self.check_success)  # which episodes end, and how
         self.compute_reward()
         new_episode = self.reset_buf != 0
         self.reset_envs(new_episode)
@@ -295,9 +263,7 @@ class VecTask:
         self.reset_idx(mask)
         self.episode.restart(mask)
         if self.reports_success:
-            success = (self.success_buf & mask).float()
-            self.metrics.record(SUCCESS_RATE, success.sum())
-            self.metrics.record(SUCCESS, success)
+            self.metrics.record_successes(self.success_buf & mask)
         if self.rewards is not None:
             self.extras["episode_terms"] = self.rewards.finish_episodes(mask)
 
@@ -308,9 +274,6 @@ class VecTask:
 
     def after_reset(self, new_episode: torch.Tensor) -> None:
         """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
-
-    def missing_hook_message(self, name: str) -> str:
-        return hook_message(type(self), name)
 
     def check_action_size(self) -> None:
         """``env.numActions`` must equal the model's actuator count, checked at construction. A task whose actions
@@ -330,16 +293,12 @@ class VecTask:
     # ---------------------------------------------------------------- contract
     def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
         """A boolean (num_envs,) mask from a mask or an index tensor (IsaacGymEnvs passes indices)."""
-        if env_ids.dtype == torch.bool:
-            return env_ids
-        mask = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        mask[env_ids.to(self.device, torch.long)] = True
-        return mask
+        return self.episode.mask(env_ids)
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
         self.metrics.begin_step()
-        with self._step_extras():
+        with fresh_dict(self, "extras"):
             self.execution.run(actions)  # the step's phases: eager, compiled or captured
 
         self.extras.update(self.episode.step_extras(self.rl_device))
@@ -351,18 +310,6 @@ class VecTask:
         self.display.show(self.control_dt, self.control_steps)
         return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
 
-    @contextlib.contextmanager
-    def _step_extras(self) -> Iterator[None]:
-        """The step's torch work writes into an empty ``extras``, merged into the run's afterwards. torch.compile
-        guards on every entry of a dict the compiled step writes into, and the run's entries are remade by each step
-        (as inference tensors in training): guarded, they would make the first steps compile the step again."""
-        extras, self.extras = self.extras, {}
-        try:
-            yield
-        finally:
-            extras.update(self.extras)
-            self.extras = extras
-
     def _before_physics(self, actions: torch.Tensor) -> None:
         action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
         self.randomizer.before_physics(self.progress_buf)
@@ -370,7 +317,7 @@ class VecTask:
 
     def _after_physics(self) -> None:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
-        self.episode.after_physics(self.post_physics_step, self._shared_sequence)
+        self.episode.after_physics(self.post_physics_step)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
         self.episode.guard_inputs(self.observations.finish_step)  # an env reset in this step starts its history
@@ -396,26 +343,21 @@ class VecTask:
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
         self._built_observations()
-        self.metrics.begin_step()
-        self.reset_envs(self._all_envs)
-        self.sim.sense()
-        self.observations.compute_checked(self.compute_observations)
-        self.randomizer.observations(self.obs_buf)
-        return self._reset_outputs(self._all_envs)
+        return self._reset(self._all_envs, lambda: self.observations.compute_checked(self.compute_observations))
 
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
-        self.metrics.begin_step()
-        self.reset_envs(done)
-        self.sim.sense()
-        self.compute_observations()
-        self.randomizer.observations(self.obs_buf)
-        return self._reset_outputs(done), done.nonzero(as_tuple=False).flatten()
+        return self._reset(done, self.compute_observations), done.nonzero(as_tuple=False).flatten()
 
-    def _reset_outputs(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The observations after a reset, through the step's own render phase; ``new_episode`` envs forget their
-        past frames."""
+    def _reset(self, new_episode: torch.Tensor, observe: Callable[[], None]) -> dict[str, torch.Tensor]:
+        """Reset the envs of ``new_episode`` and observe them (``observe``) after the sense phase; the images come
+        through the step's own render phase, and ``new_episode`` envs forget their past frames."""
+        self.metrics.begin_step()
+        self.reset_envs(new_episode)
+        self.sim.sense()
+        observe()
+        self.randomizer.observations(self.obs_buf)
         self._render_cameras(self.execution.steps)
         return self.observations.reset_outputs(self.obs_dict, new_episode, self.execution.steps)
 
