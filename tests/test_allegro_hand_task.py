@@ -18,6 +18,7 @@ import torch
 from in_hand_reference import assert_reward_is_the_reference, place_cube, reference_reward
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, RUNNING
 from isaacgymenvs_mw.tasks.in_hand import hand_terms, random_rotation
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -157,10 +158,10 @@ def test_consecutive_successes_is_ige_running_average_over_resetting_envs():
     _, _, done, extras = env.step(torch.zeros(2, 16))
     assert done.tolist() == [1, 0]
     assert extras["successes"].tolist() == [True, False] and extras["time_outs"].tolist() == [True, False]
-    assert extras["episode_outcomes"]["consecutive_successes"].tolist() == [1.0, 0.0]
+    assert env.metrics.recorded(OUTCOME)["consecutive_successes"].tolist() == [1.0, 0.0]
     # one env reset with 1 success: cs = 0.1 x 1 / 1 + 0.9 x 0
     assert env.consecutive_successes.item() == pytest.approx(0.1)
-    assert extras["running_metrics"]["consecutive_successes"].item() == pytest.approx(0.1)
+    assert env.metrics.recorded(RUNNING)["consecutive_successes"].item() == pytest.approx(0.1)
     # env 1 falls with no success: cs = 0.1 x 0 + 0.9 x 0.1
     place_cube(env, np.stack([start + [0, 0, 0.03], start - [0, 0, 0.34]]),
                np.stack([IDENTITY, IDENTITY]))

@@ -3,8 +3,8 @@ from their layout and scenes of assets moved code, not behaviour).
 
 For each task: 2 worlds on the CPU, seed 0; ``reset()``, 50 env steps of zero actions, then 50 of seeded uniform
 random actions in [-1, 1]. Recorded per step: the policy observation, the critic state (when the task has one), the
-reward, the reset and time-out flags, and the episode sums the task reports (``extras["episode_terms"]`` and
-``extras["episode_metrics"]``). The recording was made before the refactor, from the code of the commit that added this file:
+reward, the reset and time-out flags, and the episode sums the task reports (``extras["episode_terms"]`` and its
+declared EPISODE_SUM metrics, ``env.metrics``). The recording was made before the refactor, from the code of the commit that added this file:
 
     python tests/test_behaviour_recording.py --record [Task ...]
 
@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:  # `examples` (the tutorial's Pendulum) is importable from the repository root
@@ -83,8 +85,11 @@ def run_task(task: str) -> dict[str, np.ndarray]:
         add("rew", rew)
         add("reset", reset)
         add("time_outs", extras["time_outs"])
-        for group in ("episode_terms", "episode_metrics"):
-            for name, value in extras.get(group, {}).items():
+        # The task's episode sums, under the names the recording gave them (the declared metrics' were then
+        # extras["episode_metrics"]).
+        for group, sums in (("episode_terms", extras.get("episode_terms", {})),
+                            ("episode_metrics", env.metrics.recorded(EPISODE_SUM))):
+            for name, value in sums.items():
                 add(f"{group}/{name}", value)
     env.close()
     return {name: np.stack(values) for name, values in rows.items()}

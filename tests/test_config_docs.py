@@ -97,20 +97,20 @@ def test_documented_override_reaches_the_joint_table():
     leaves the HAA joints at 80; the bracketed key also selects joints by the project's one name rule."""
     from isaacgymenvs_mw.sim import request_from_config
     from isaacgymenvs_mw.sim.builder import match_joint_numbers
-    from isaacgymenvs_mw.tasks.base.vec_task import ASSETS_DIR
+    from isaacgymenvs_mw.tasks.base.simulation import ASSETS_DIR
     from isaacgymenvs_mw.utils.config import compose_config, to_dict
 
     (_, second) = documented_override_lines()
     assert second[:3] == ["python", "train.py", "task=Anymal"]
     task = to_dict(compose_config(second[2:]).task)
     assert list(task["env"]["control"]["stiffness"].items()) == [(".*_(HFE|KFE)", 60.0), (".*", 80.0)]
-    request, _ = request_from_config(task["env"], task.get("sim", {}), task.get("yaml_dir"), ASSETS_DIR)
+    request = request_from_config(task["env"], task.get("sim", {}), task.get("yaml_dir"), ASSETS_DIR)
     kp = {joint: drive.stiffness for joint, drive in request.drives.items()}
     assert len(kp) == 12
     assert all(v == (60.0 if joint.endswith(("_HFE", "_KFE")) else 80.0) for joint, v in kp.items()), kp
     # Added with "+" alone, the pattern comes after the YAML's '.*', which selects every joint first: no effect.
     added = to_dict(compose_config(["task=Anymal", second[-1].replace(",.*:80.0", "")]).task)
-    request, _ = request_from_config(added["env"], added.get("sim", {}), added.get("yaml_dir"), ASSETS_DIR)
+    request = request_from_config(added["env"], added.get("sim", {}), added.get("yaml_dir"), ASSETS_DIR)
     assert {drive.stiffness for drive in request.drives.values()} == {80.0}
 
     joints = ["lower_leg_joint0", "lower_leg_joint1", "lower_leg_joint2", "upper_leg_joint0"]

@@ -189,7 +189,7 @@ def test_no_blowup_no_warning():
         for _ in range(2):
             task.step(task.zero_actions())
     assert not [w for w in caught if "blew up" in str(w.message) or "PD drive" in str(w.message)]
-    assert task.blowups.poll() is None
+    assert task.episode.blowups.poll() is None
 
 
 # ------------------------------------------------------------------------------------------------ closed chains

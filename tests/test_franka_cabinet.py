@@ -14,6 +14,7 @@ import torch
 
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME
 from isaacgymenvs_mw.tasks import franka_cabinet as fc
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -127,8 +128,8 @@ def test_the_episode_ends_with_success_once_the_drawer_is_past_039m(env):
                         asset="cabinet")
     _, _, done, extras = env.step(torch.zeros(2, 8))
     assert done.tolist() == [1, 0]
-    assert extras["episode_outcomes"]["success"].tolist() == [1.0, 0.0]
-    assert extras["episode_metrics"]["success"].item() == 1.0
+    assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0, 0.0]
+    assert env.metrics.recorded(EPISODE_SUM)["success"].item() == 1.0
     # the learner bootstraps a success like a time-out (VecTask.check_success); the statistics keep them apart
     assert extras["successes"].tolist() == [True, False] and extras["time_outs"].tolist() == [1, 0]
     assert env.cabinet.dof_pos[0, 0].item() == 0.0  # reset: closed again

@@ -15,6 +15,7 @@ import torch
 from isaacgymenvs_mw import make as make_task
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.tasks.base.metrics import OUTCOME
 from isaacgymenvs_mw.tasks.franka_cube_lift import cube_lift_terms, sample_cube
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -155,7 +156,7 @@ def test_a_scripted_grasp_and_lift_ends_the_episode_as_a_success():
             rise = env.cube.root_pos[:, 2].numpy() - REST_Z
             _, _, done, extras = env.step(action)
             highest = np.maximum(highest, rise)
-            new = extras["episode_outcomes"]["success"].bool() if done.any() else torch.zeros(2, dtype=torch.bool)
+            new = env.metrics.recorded(OUTCOME)["success"].bool() if done.any() else torch.zeros(2, dtype=torch.bool)
             assert torch.equal(new, done.bool() & ~succeeded)  # the only episodes ending are successes
             succeeded |= new
         if succeeded.all():

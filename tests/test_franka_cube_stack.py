@@ -15,6 +15,7 @@ import torch
 
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME
 from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.tasks.franka_cube_stack import (
     cube_stack_terms,
@@ -135,8 +136,8 @@ def test_an_episode_ends_on_stacking_and_counts_as_a_success(env):
     _, rew, done, extras = env.step(torch.tensor([[0.0] * 7 + [1.0]] * 3))  # hold still, gripper open
     assert done.tolist() == [1, 0, 0]
     assert rew[0].item() == pytest.approx(16.0)
-    assert extras["episode_outcomes"]["success"].tolist() == [1.0, 0.0, 0.0]
-    assert extras["episode_metrics"]["success"].item() == 1.0
+    assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0, 0.0, 0.0]
+    assert env.metrics.recorded(EPISODE_SUM)["success"].item() == 1.0
     assert not torch.allclose(env.cube_a.root_pos[0], torch.tensor(a[0], dtype=torch.float32))  # reset
 
 

@@ -29,7 +29,7 @@ PHASES = (("descend", 1.0), ("close", 0.5), ("lift", 1.0), ("hold", 1.0))  # sec
 @pytest.fixture(scope="module")
 def scene():
     cfg = OmegaConf.to_container(OmegaConf.load(TASK_YAML), resolve=False)
-    request, _ = request_from_config(cfg["env"], cfg["sim"], str(TASK_YAML.parent), REPO / "assets")
+    request = request_from_config(cfg["env"], cfg["sim"], str(TASK_YAML.parent), REPO / "assets")
     return build_model(request), cfg
 
 

@@ -12,6 +12,7 @@ import pytest
 import torch
 
 import isaacgymenvs_mw
+from isaacgymenvs_mw.tasks.base.metrics import PER_STEP
 from conftest import REPO_ROOT
 
 ASSETS = REPO_ROOT / "assets" / "mjcf"
@@ -317,14 +318,14 @@ def test_episode_times_out_at_episode_length():
 
 def test_test_mode_reports_forward_speed(ant):
     ant.reset()
-    ant.record_eval_metrics = True
+    ant.metrics.evaluate()
     try:
         _, _, reset, extras = ant.step(torch.rand(ant.num_envs, 8) * 2 - 1)
-        speed = extras["eval_metrics"]["forward_speed"]
+        speed = ant.metrics.recorded(PER_STEP)["forward_speed"]
         live = reset == 0
         torch.testing.assert_close(speed[live], ant.sim.root_lin_vel[live, 0])
     finally:
-        ant.record_eval_metrics = False
+        ant.metrics.evaluate(False)
 
 
 # ------------------------------------------------------------------------------------------ MuJoCo C

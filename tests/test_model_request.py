@@ -38,7 +38,7 @@ def task_cfg(name: str) -> dict:
     return OmegaConf.to_container(cfg.task, resolve=True)
 
 
-def describe(request, torque_speed) -> dict:
+def describe(request) -> dict:
     """The request as plain data: every field VecTask.model_request set, paths relative to the repository."""
     o = request.options
     return {
@@ -59,7 +59,7 @@ def describe(request, torque_speed) -> dict:
         "gear": {k: float(v) for k, v in request.gear.items()},
         "ctrl_range": {k: [float(x) for x in v] for k, v in request.ctrl_range.items()},
         "keep_asset_contacts": request.keep_asset_contacts,
-        "torque_speed": {j: list(v) for j, v in torque_speed.items()},
+        "torque_speed": {j: list(v) for j, v in request.torque_speed.items()},
     }
 
 
@@ -70,7 +70,7 @@ def vec_task_request(cfg: dict) -> dict:
     task = object.__new__(VecTask)
     task.cfg = cfg
     request = VecTask.model_request(task)
-    return describe(request, getattr(task, "_torque_speed", {}))
+    return describe(request)
 
 
 def new_request(cfg: dict):
@@ -81,13 +81,13 @@ def new_request(cfg: dict):
 def test_request_matches_the_recorded_vec_task_request(task):
     recorded = json.loads(RECORD.read_text())
     assert task in recorded, f"{task}: no recorded request; record it (module docstring)"
-    assert describe(*new_request(task_cfg(task))) == recorded[task]
+    assert describe(new_request(task_cfg(task))) == recorded[task]
 
 
 @pytest.mark.parametrize("task", TASKS)
 def test_request_matches_vec_task_model_request_live(task):
     cfg = task_cfg(task)
-    assert describe(*new_request(cfg)) == vec_task_request(cfg)
+    assert describe(new_request(cfg)) == vec_task_request(cfg)
 
 
 def test_every_shipped_task_was_recorded_with_its_differences():
@@ -109,7 +109,7 @@ def test_the_asset_is_parsed_once(monkeypatch):
         return real(path, *args, **kwargs)
 
     monkeypatch.setattr(builder_module.mujoco.MjSpec, "from_file", staticmethod(counting))
-    request, _ = new_request(cfg)
+    request = new_request(cfg)
     model = build_model(request)
     build_model(request)  # a second build from the same request sees the file's spec, not the first build's edits
     assert len(calls) == 1, calls
@@ -123,14 +123,14 @@ def test_the_asset_is_parsed_once(monkeypatch):
 def test_sim_dt_is_read_once_and_gives_the_timestep():
     cfg = task_cfg("Cartpole")
     cfg["sim"]["dt"] = 0.004
-    request, _ = new_request(cfg)
+    request = new_request(cfg)
     assert build_model(request).opt.timestep == pytest.approx(0.004)
 
 
 def _walker_with(control: dict) -> mujoco.MjModel:
     cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
                              "fixBaseLink": False}, "control": control}, "sim": {}}
-    return build_model(new_request(cfg)[0])
+    return build_model(new_request(cfg))
 
 
 def test_a_drive_on_a_joint_the_asset_actuates_rewrites_that_actuator_in_place():
@@ -170,9 +170,9 @@ def test_unknown_sim_key_is_refused_by_the_request():
 
 def test_stability_probe_key_reaches_the_request_and_refuses_a_non_boolean():
     cfg = task_cfg("Cartpole")
-    assert new_request(cfg)[0].stability_probe is True  # the default: probe
+    assert new_request(cfg).stability_probe is True  # the default: probe
     cfg["sim"]["stabilityProbe"] = False
-    assert new_request(cfg)[0].stability_probe is False
+    assert new_request(cfg).stability_probe is False
     cfg["sim"]["stabilityProbe"] = "no"  # a string is not a switch: "no" would be truthy
     with pytest.raises(ConfigError, match=r"^sim\.stabilityProbe='no' is invalid: give True or False$"):
         new_request(cfg)
@@ -224,11 +224,11 @@ def test_a_plain_number_is_every_joints_value():
     joint, so the request equals the one the YAML's own mapping gives (and a different number changes every gain)."""
     cfg = task_cfg("Go1")
     assert cfg["env"]["control"]["stiffness"] == {".*": 20.0}  # the expectation below is the shipped mapping's
-    expected = describe(*new_request(cfg))["drives"]
+    expected = describe(new_request(cfg))["drives"]
     cfg["env"]["control"]["stiffness"] = 20
-    assert describe(*new_request(cfg))["drives"] == expected
+    assert describe(new_request(cfg))["drives"] == expected
     cfg["env"]["control"]["stiffness"] = 35.5
-    drives = describe(*new_request(cfg))["drives"]
+    drives = describe(new_request(cfg))["drives"]
     assert len(drives) == 12 and {d[1] for d in drives.values()} == {35.5}
     assert match_joint_numbers(2, NAMES[:2], "k") == {"LF_HAA": 2.0, "LF_HFE": 2.0}
     with pytest.raises(ConfigError, match=r"^k='position' is invalid: give a mapping \{joint or regex: value\}$"):
@@ -267,7 +267,7 @@ def test_env_contact_sets_condim_and_friction_of_the_geoms_it_selects():
     cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
                              "fixBaseLink": False},
                    "contact": {".*_foot_geom": {"condim": 4, "friction": [1.5, 0.01]}}}, "sim": {}}
-    m = build_model(new_request(cfg)[0])
+    m = build_model(new_request(cfg))
     feet = [g for g in range(m.ngeom) if (m.geom(g).name or "").endswith("_foot_geom")]
     assert feet, "walker.xml has foot geoms"
     for g in range(m.ngeom):
@@ -288,11 +288,11 @@ def test_env_contact_bad_values_are_refused_naming_the_key(entry, message):
     cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
                              "fixBaseLink": False}, "contact": {".*_foot": entry}}, "sim": {}}
     with pytest.raises(ConfigError, match=message):
-        build_model(new_request(cfg)[0])
+        build_model(new_request(cfg))
 
 
 def test_env_contact_pattern_that_selects_no_geom_is_refused():
     cfg = {"env": {"asset": {"assetRoot": str(TESTS_DIR / "assets"), "assetFileName": "walker.xml",
                              "fixBaseLink": False}, "contact": {"gripper_pad": {"condim": 4}}}, "sim": {}}
     with pytest.raises(ConfigError, match=r"^env\.contact\.gripper_pad"):
-        build_model(new_request(cfg)[0])
+        build_model(new_request(cfg))

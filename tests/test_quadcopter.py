@@ -16,6 +16,7 @@ import torch
 from conftest import train_one_iteration_then_test
 
 from isaacgymenvs_mw import make
+from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
 from isaacgymenvs_mw.tasks.quadcopter import compute_quadcopter_reward, quadcopter_failed
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -147,19 +148,20 @@ def test_missing_rotor_bodies_is_a_one_line_error_naming_the_key():
 
 
 def test_test_mode_reports_distance_and_reached_target_by_the_distance_at_the_episode_end(env):
-    env.record_eval_metrics = True  # as evaluate() sets it
+    env.metrics.evaluate()  # as evaluate() does
+    env.metrics.begin_step()
     target = torch.tensor([0.0, 0.0, 1.0])
     mask = torch.tensor([True, True])
     env.reset_idx(mask)
     env.sim.write_state(mask, root_pos=torch.tensor([[0.0, 0.05, 1.0], [0.3, 0.0, 1.0]]))
     env.compute_reward()
-    assert env.extras["eval_metrics"]["target_distance"].tolist() == pytest.approx([0.05, 0.3], abs=1e-5)
+    assert env.metrics.recorded(PER_STEP)["target_distance"].tolist() == pytest.approx([0.05, 0.3], abs=1e-5)
     env.reset_idx(torch.tensor([True, False]))  # only the first episode ends: the second reports nothing
-    assert env.extras["episode_outcomes"]["reached_target"].tolist() == [1.0, 0.0]
+    assert env.metrics.recorded(OUTCOME)["reached_target"].tolist() == [1.0, 0.0]
     env.sim.write_state(mask, root_pos=torch.stack([target + torch.tensor([0.2, 0.0, 0.0]), target]))
     env.reset_idx(mask)
-    assert env.extras["episode_outcomes"]["reached_target"].tolist() == [0.0, 1.0]
-    env.record_eval_metrics = False
+    assert env.metrics.recorded(OUTCOME)["reached_target"].tolist() == [0.0, 1.0]
+    env.metrics.evaluate(False)
 
 
 def test_spin_is_capped_at_max_angular_velocity_with_its_direction_kept(env):

@@ -71,7 +71,7 @@ def scene_cfg(overrides: list[str] = ()) -> dict:
 
 
 def build(cfg: dict, num_worlds: int = 2) -> Simulator:
-    request, _ = request_from_config(cfg["env"], cfg["sim"], cfg.get("yaml_dir"), REPO / "assets")
+    request = request_from_config(cfg["env"], cfg["sim"], cfg.get("yaml_dir"), REPO / "assets")
     return Simulator(build_model(request), num_worlds, "cpu", nconmax=16, njmax=64)
 
 

@@ -16,6 +16,7 @@ import torch
 
 import isaacgymenvs_mw
 from isaacgymenvs_mw.learning.vecenv import EpisodeStats
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM
 from isaacgymenvs_mw.sim.terrain import (TERRAIN_TYPES, column_types, generate_terrain, ground_geoms,
                                          parse_terrain_config)
 
@@ -377,7 +378,7 @@ def test_mean_terrain_level_reaches_the_episode_stats(task):
     stats = EpisodeStats(NUM_ENVS, "cpu")
     stats.record(torch.zeros(NUM_ENVS), mask, torch.zeros(NUM_ENVS, dtype=torch.bool),
                  torch.zeros(NUM_ENVS, dtype=torch.bool))
-    stats.add_terms(task.extras["episode_metrics"], group="Episode")
+    stats.add_terms(task.metrics.recorded(EPISODE_SUM), group="Episode")
     assert stats.pop()["Episode/terrain_level"] == pytest.approx(0.5)  # mean over all envs, not the 5 resetting
 
 

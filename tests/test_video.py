@@ -78,7 +78,7 @@ def test_cartpole_clips_frames_and_rate(tmp_path):
     syncs = []
     real_sync = rec._sync
     rec._sync = lambda: (syncs.append(task.control_steps), real_sync())[1]
-    task.video_recorder = rec
+    task.display.record(rec)
 
     actions = torch.ones(task.num_envs, task.num_actions)
     for _ in range(23):
@@ -87,7 +87,7 @@ def test_cartpole_clips_frames_and_rate(tmp_path):
     assert syncs == [1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 21, 22, 23]
     assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == ["video_1.mp4", "video_11.mp4"]
     task.close()  # flushes the clip in progress
-    assert task.video_recorder is None
+    assert task.display.video_recorder is None
     names = sorted(p.name for p in (tmp_path / "videos").iterdir())  # and no partial file is left
     assert names == ["video_1.mp4", "video_11.mp4", "video_21.mp4"]
 

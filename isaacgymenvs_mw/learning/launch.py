@@ -24,7 +24,7 @@ from isaacgymenvs_mw.learning.runner import (
     rsl_rl_config,
     write_json,
 )
-from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
 from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
@@ -132,6 +132,7 @@ def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, st
         "mean_episode_length": means.get("mean_episode_length"),
         "timeout_fraction": means.get("timeout_fraction"),
         **episode_metrics(means),  # what the task declares, by name (terrain_level on the terrain tasks)
+        "metrics": training_metric_keys(task),  # their history keys, in the task's order (the sweep's "auto")
         "nonfinite_resets": runner.nonfinite_resets,
         **runner.learner_health(),  # optimiser steps skipped, states restored
         "device": device_description(task.sim_device),
@@ -217,8 +218,8 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
     observations = task.observations
     beside = None if observations.images is None else (
         lambda: observations.camera_picture(task.control_steps).cpu().numpy())
-    task.video_recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
-                                        beside=beside)
+    task.display.record(VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
+                                      beside=beside))
     print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)
 
 

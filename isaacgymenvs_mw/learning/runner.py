@@ -26,6 +26,7 @@ from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_te
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
+from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401  (StopRequested: imported from here too)
 
@@ -333,7 +334,7 @@ def evaluate(task, policy, device: str) -> dict:
     Each env contributes its first episode, so the result is an unbiased sample of ``num_envs`` episodes from
     the task's reset distribution (commands too, for the legged tasks).
     """
-    task.record_eval_metrics = True  # the task adds its per-step metrics, if it has any (VecTask.record_eval_metrics)
+    task.metrics.evaluate()  # the task records its per-step metrics (tasks/base/metrics.py), if it declares any
     env = RslRlVecEnv(task)
     n = env.num_envs
     ret = torch.zeros(n, device=env.device)
@@ -358,7 +359,7 @@ def evaluate(task, policy, device: str) -> dict:
             active = ~finished
             ret += rew * active
             length += active.float()
-            for key, value in extras.get("eval_metrics", {}).items():
+            for key, value in task.metrics.recorded(PER_STEP).items():
                 # per-env per-step values, averaged over the steps each env spent in its first episode
                 metric_sums[key] = metric_sums.get(key, torch.zeros(n, device=env.device)) + value * active
             just_done = active & (dones != 0)
@@ -368,7 +369,7 @@ def evaluate(task, policy, device: str) -> dict:
             if "successes" in extras:  # bootstrapped like time-outs for learning, but not time-outs
                 timed_out &= ~extras["successes"]
             result_timeout |= just_done & timed_out
-            for key, value in extras.get("episode_outcomes", {}).items():
+            for key, value in task.metrics.recorded(OUTCOME).items():
                 # per-env values of the episodes that ended in this step (a task's success flag)
                 outcomes[key] = torch.where(just_done, value, outcomes.get(key, torch.zeros(n, device=env.device)))
             finished |= just_done

@@ -245,18 +245,15 @@ def _copy_output(job: Job, mode: str = "w") -> None:
 
 
 # ---------------------------------------------------------------------------------------------------- aggregate
-def metric_key(history: list[dict], metric: str) -> str:
-    """The history key of ``metric`` (``auto``: the task's first declared metric, else the episode reward): a key of
-    the history as it is (``timeout_fraction``), else a declared metric's short name (``success``)."""
+def metric_key(history: list[dict], metric: str, declared: list[str]) -> str:
+    """The history key of ``metric`` (``auto``: the first of the task's ``declared`` metrics, summary.json's
+    "metrics", else the episode reward): a key of the history as it is (``timeout_fraction``), else a declared
+    metric's short name (``success``)."""
     if metric != "auto":
         if any(metric in record for record in history):
             return metric
         return metric if metric.startswith(METRIC_PREFIX) or metric.startswith("mean_") else METRIC_PREFIX + metric
-    for record in history:
-        for key in record:
-            if key.startswith(METRIC_PREFIX):
-                return key
-    return "mean_episode_reward"
+    return declared[0] if declared else "mean_episode_reward"
 
 
 def smoothed(values: list[float], window: int = SMOOTHING) -> list[float]:
@@ -293,7 +290,7 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
     """sweep.json, sweep.md and sweep.png from the jobs' summaries; returns the metric's history key and the rows."""
     summaries = [_summary_of(job) for job in jobs]
     histories = [r for s in summaries if s for r in s.get("history", [])]
-    key = metric_key(histories, metric)
+    key = metric_key(histories, metric, next((s.get("metrics", []) for s in summaries if s), []))
     if histories and not any(r.get(key) is not None for r in histories):
         known = sorted({k for r in histories for k in r
                         if k.startswith(METRIC_PREFIX) or k.startswith("mean_") or k == "timeout_fraction"})

@@ -6,14 +6,19 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, RUNNING
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
-# Task metrics (``extras["episode_metrics"]``: sums over the episodes that ended in a step) are logged as
-# Episode/<name> in TensorBoard and the history, shown on the progress line, and written to summary.json by name;
-# per-term reward sums (``extras["episode_terms"]``) as Episode_Reward/<name>. Running metrics (``extras[
-# "running_metrics"]``: device scalars the task keeps itself, e.g. AllegroHand's consecutive_successes) are logged the
-# same way, at their value when the iteration's statistics are read.
+# The task's declared metrics (tasks/base/metrics.py) of kinds EPISODE_SUM (sums over the episodes that ended in a
+# step) and RUNNING (device scalars the task keeps, at their value when the iteration's statistics are read) are
+# logged as Episode/<name> in TensorBoard and the history, shown on the progress line, and written to summary.json by
+# name; per-term reward sums (``extras["episode_terms"]``) as Episode_Reward/<name>.
 METRIC_GROUP = "Episode/"
+
+
+def training_metric_keys(task: VecTask) -> list[str]:
+    """The history keys of the metrics the task declares for training (EPISODE_SUM and RUNNING), in their order."""
+    return [METRIC_GROUP + m.name for m in task.metrics.declared if m.kind in (EPISODE_SUM, RUNNING)]
 
 
 class EpisodeStats:
@@ -128,10 +133,11 @@ class RslRlVecEnv(VecEnv):
         self.stats.record(rew, reset, time_outs, extras["nonfinite_resets"])
         if "episode_terms" in extras:  # tasks that report them set them every step
             self.stats.add_terms(extras["episode_terms"])
-        if "episode_metrics" in extras:  # the metrics the task declares, e.g. the terrain curriculum's level
-            self.stats.add_terms(extras["episode_metrics"], group=METRIC_GROUP.rstrip("/"))
-        if "running_metrics" in extras:
-            self.stats.set_running(extras["running_metrics"], group=METRIC_GROUP.rstrip("/"))
+        sums, running = self.task.metrics.recorded(EPISODE_SUM), self.task.metrics.recorded(RUNNING)
+        if sums:  # e.g. the terrain curriculum's level
+            self.stats.add_terms(sums, group=METRIC_GROUP.rstrip("/"))
+        if running:
+            self.stats.set_running(running, group=METRIC_GROUP.rstrip("/"))
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

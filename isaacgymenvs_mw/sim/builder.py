@@ -148,6 +148,9 @@ class ModelRequest:
     sensors: Sequence[Sensor] = ()
     # Step one world in MuJoCo C at build time to see whether the drives diverge (sim.stabilityProbe, sim/stability.py).
     stability_probe: bool = True
+    # {joint: (saturation torque, torque limit, no-load speed)}: the DC-motor limit of the joint's drive
+    # (env.control.torqueSpeed, sim/actuators.py), applied by the Simulator built with it (``Simulator(torque_speed=)``).
+    torque_speed: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
 
     def body_names(self) -> list[str]:
         """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""

@@ -41,11 +41,9 @@ SCENE_ASSET_KEYS = ("assetRoot", "assetFileName", "pos", "rot", "fixBaseLink", "
 TorqueSpeed = dict[str, tuple[float, float, float]]
 
 
-def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
-                        assets_dir: Path) -> tuple[ModelRequest, TorqueSpeed]:
-    """The model a task YAML asks for, from ``env.asset``, ``env.assets``, ``env.control``, ``env.plane``,
-    ``env.baseInitState``, ``env.cameras`` and ``sim``; and ``env.control.torqueSpeed`` per joint (empty when
-    absent), which the built Simulator needs (``Simulator.enable_torque_speed_limit``).
+def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None, assets_dir: Path) -> ModelRequest:
+    """The model a task YAML asks for, from ``env.asset``, ``env.assets``, ``env.control`` (its ``torqueSpeed``
+    limits included: ``ModelRequest.torque_speed``), ``env.plane``, ``env.baseInitState``, ``env.cameras`` and ``sim``.
 
     ``yaml_dir``: the task YAML's folder (relative asset roots are resolved against it; None: the working
     directory). ``assets_dir``: the folder an empty ``assetRoot`` means (the repository's ``assets/``).
@@ -69,7 +67,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
             "(env.asset.keepAssetContacts is True, the default for an MJCF): set keepAssetContacts: False to "
             "use the framework's collision filter, or remove selfCollisions and say it in the MJCF"
         )
-    request = ModelRequest(
+    return ModelRequest(
         asset_file=asset_file,
         fix_base=fix_base,
         collapse_fixed_joints=collapse,
@@ -93,8 +91,8 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None,
         cameras=camera_specs(env.get("cameras")),
         sensors=sensor_specs(env.get("sensors")),
         stability_probe=stability_probe(sim),
+        torque_speed=torque_speed,
     )
-    return request, torque_speed
 
 
 CONDIMS = (1, 3, 4, 6)

@@ -15,8 +15,9 @@ adds what it needs to the model spec there (``Sensor.add_to``); once the model i
     the captured step on CUDA), and before the observation of ``reset()``.
 Cameras (sim/cameras.py) are not a ``Sensor``: their refresh is a render, Warp launches replayed as a Warp graph,
 which cannot run inside the compiled torch function that holds the sense phase (it sits between the resets and the
-flat observation, both in ``post_physics_step``); VecTask renders them after that function
-(tasks/base/step_execution.py). They can join once the flat observation is computed after a sense phase of its own.
+flat observation, both in ``post_physics_step``); VecTask renders them after that function, in the step's render
+phase (tasks/base/step_execution.py). They can join once the flat observation is computed after the sense phase,
+outside that function.
 
 ``env.sensors.<name>: {type: ..., site: ...}`` declares a MuJoCo sensor that the asset does not have. Its type is one
 MuJoCo sensor, or ``imu``: an accelerometer and a gyro on one site, MuJoCo sensors ``<name>_accelerometer`` and

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -78,6 +78,9 @@ class Simulator:
             Go1); the CPU device runs kernels serially and reproduces runs either way.
         cameras: the model's cameras to render (``env.cameras``, already added to ``mj_model`` by ``build_model``);
             their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
+        torque_speed: {joint: (saturation torque, torque limit, no-load speed)} (``ModelRequest.torque_speed``): the
+            drives of these joints follow a DC motor's torque-speed curve (``sim/actuators.py``) at every physics
+            step; ``self.torque_speed`` then holds the per-world parameter views, which randomisation may rewrite.
         sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``): each is bound to its view
             (``sensor(name)``), and the computed ones are refreshed by ``sense()``. The model's MuJoCo sensors are
             views by name without it.
@@ -96,6 +99,7 @@ class Simulator:
         deterministic: bool = False,
         cameras: Sequence[CameraSpec] = (),
         sensors: Sequence[Sensor] = (),
+        torque_speed: Mapping[str, tuple[float, float, float]] | None = None,
     ) -> None:
         if num_worlds < 1:
             raise ConfigError(f"numEnvs must be >= 1, got {num_worlds}")
@@ -111,6 +115,8 @@ class Simulator:
             # MuJoCo Warp allocates scratch inside step(); capturing that needs the stream-ordered allocator.
             self.use_graphs = False
 
+        # The limit rewrites each world's force ranges from its own joint speeds: they are per world.
+        per_world_fields = tuple(dict.fromkeys((*per_world_fields, *(("actuator_forcerange",) if torque_speed else ()))))
         with wp.ScopedDevice(self.wp_device):
             fields = [f for f in per_world_fields if not f.startswith("opt.")]
             self.model = mjw.put_model(mj_model, batch_sizes={f: self.num_worlds for f in fields})
@@ -132,7 +138,7 @@ class Simulator:
         self._bind_views()
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._graphs: dict[str, object] = {}
-        self.torque_speed: TorqueSpeedLimit | None = None
+        self.torque_speed: TorqueSpeedLimit | None = self._torque_speed_limit(torque_speed) if torque_speed else None
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
@@ -287,15 +293,14 @@ class Simulator:
             return wp.to_torch(getattr(self.model.opt, name[len("opt."):]))
         return wp.to_torch(getattr(self.model, name))
 
-    def enable_torque_speed_limit(self, saturation: np.ndarray, limit: np.ndarray, speed: np.ndarray) -> None:
-        """Limit each drive's force by a DC motor's torque-speed curve (``sim/actuators.py``), per physics step.
-
-        Arguments are per actuator (nu,); the model must batch ``actuator_forcerange`` per world and compile the
-        limited actuators with ``forcelimited``. ``self.torque_speed`` then holds the per-world parameter views.
-        """
-        self.torque_speed = TorqueSpeedLimit(self.mj_model, self.model, self.data, self.num_worlds, self.device,
-                                             saturation, limit, speed)
-        self.recapture()
+    def _torque_speed_limit(self, limits: Mapping[str, tuple[float, float, float]]) -> TorqueSpeedLimit:
+        """The DC-motor limit of each actuator's joint (``inf``: none); the model compiles the limited actuators
+        with ``forcelimited``."""
+        m = self.mj_model
+        joint_of = [m.joint(int(j)).name for j in m.actuator_trnid[:, 0]]
+        params = np.array([limits.get(j, (np.inf,) * 3) for j in joint_of], dtype=np.float64).reshape(-1, 3)
+        return TorqueSpeedLimit(m, self.model, self.data, self.num_worlds, self.device,
+                                params[:, 0], params[:, 1], params[:, 2])
 
     def sensor(self, name: str, key: str = "sensor") -> torch.Tensor:
         """(num_worlds, ...) torch view of the sensor ``name``: a MuJoCo sensor of the model (an MJCF ``<sensor>``

@@ -33,6 +33,7 @@ from collections.abc import Mapping
 import torch
 
 from isaacgymenvs_mw.sim.couplings import joint_couplings, servo_transmission
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING, Metric
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
@@ -58,6 +59,11 @@ _NUMBER_KEYS = ("dofSpeedScale", "actionsMovingAverage", "resetPositionNoise", "
                 "resetDofVelRandomInterval", "rotEps", "fallDistance", "successTolerance", "averFactor",
                 "rewardScale")
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
+# IGE's consecutive_successes (a running average over resets, averFactor), the goals reached per ended episode, and
+# in test mode each env's first episode's count.
+CONSECUTIVE_SUCCESSES = Metric("consecutive_successes", RUNNING)
+SUCCESSES = Metric("successes", EPISODE_SUM)
+EPISODE_SUCCESSES = Metric("consecutive_successes", OUTCOME)
 REWARD_SCALE_KEYS = {"dist": "distRewardScale", "rot": "rotRewardScale", "action_penalty": "actionPenaltyScale",
                      "reach_goal": "reachGoalBonus", "fall": "fallPenalty"}
 
@@ -291,6 +297,9 @@ class InHandTask(VecTask):
     def _unscaled_dof_pos(self) -> torch.Tensor:
         return (2.0 * self.sim.dof_pos - self.dof_upper - self.dof_lower) / (self.dof_upper - self.dof_lower)
 
+    def declared_metrics(self) -> list[Metric]:
+        return [*super().declared_metrics(), CONSECUTIVE_SUCCESSES, SUCCESSES, EPISODE_SUCCESSES]
+
     # ------------------------------------------------------------------ reset
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
@@ -302,10 +311,10 @@ class InHandTask(VecTask):
         aver = self.env_numbers["averFactor"]
         self.consecutive_successes.copy_(torch.where(count > 0, aver * mean + (1.0 - aver) * self.consecutive_successes,
                                                      self.consecutive_successes))
-        self.extras["running_metrics"] = {"consecutive_successes": self.consecutive_successes}
-        self.extras["episode_metrics"] = {"successes": ended.sum()}
+        self.metrics.record(CONSECUTIVE_SUCCESSES, self.consecutive_successes)
+        self.metrics.record(SUCCESSES, ended.sum())
         # Test mode: each env's first episode's successes (eval.json consecutive_successes, their mean).
-        self.extras["episode_outcomes"] = {"consecutive_successes": ended}
+        self.metrics.record(EPISODE_SUCCESSES, ended)
         self.successes.masked_fill_(mask, 0.0)
 
         # The hand: IGE's draw, default pose 0 + resetDofPosRandomInterval x a point of the joint range.

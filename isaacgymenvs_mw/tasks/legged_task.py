@@ -32,12 +32,17 @@ from isaacgymenvs_mw.sim import (
     match_joint_values,
     parse_terrain_config,
 )
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, PER_STEP, Metric
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
+
+# Test mode: |command - base velocity| in the horizontal plane (m/s), each step; the terrain curriculum's mean level.
+LIN_VEL_TRACKING_ERROR = Metric("lin_vel_tracking_error", PER_STEP)
+TERRAIN_LEVEL = Metric("terrain_level", EPISODE_SUM)
 
 
 class LeggedTask(VecTask):
@@ -332,12 +337,16 @@ class LeggedTask(VecTask):
         self.actions[:] = actions
         self.sim.ctrl[:] = self.default_dof_pos + self.action_scale * actions
 
+    def declared_metrics(self) -> list[Metric]:
+        terrain = [TERRAIN_LEVEL] if self.terrain is not None else []
+        return [*super().declared_metrics(), LIN_VEL_TRACKING_ERROR, *terrain]
+
     def after_reset(self, new_episode: torch.Tensor) -> None:
         # Commands run on a timer: the envs whose episode goes on draw new ones every resamplingTime_s.
         self._resample_commands((self.progress_buf % self.command_resample_steps == 0) & ~new_episode)
-        if self.record_eval_metrics:
+        if self.metrics.evaluating:
             err = torch.norm(self.commands[:, :2] - self.base_lin_vel[:, :2], dim=1)
-            self.extras["eval_metrics"] = {"lin_vel_tracking_error": err}
+            self.metrics.record(LIN_VEL_TRACKING_ERROR, err)
         self.last_actions[:] = self.actions
         self.last_dof_vel[:] = self.sim.dof_vel
 
@@ -379,7 +388,7 @@ class LeggedTask(VecTask):
             root_pos = self.base_init_pos + self.env_origins
             root_pos = torch.cat((root_pos[:, :2] + jitter, root_pos[:, 2:]), dim=1)
             # Mean level over all envs, weighted by the episodes ending now (the learner divides by their count).
-            self.extras["episode_metrics"] = {"terrain_level": self.terrain_levels.float().mean() * mask.sum()}
+            self.metrics.record(TERRAIN_LEVEL, self.terrain_levels.float().mean() * mask.sum())
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos),
                              root_pos=root_pos, root_quat=self.base_init_quat,

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import torch
 
+from isaacgymenvs_mw.tasks.base.metrics import PER_STEP, Metric
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms, reward_methods
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
@@ -38,6 +39,7 @@ _SCALAR_KEYS = (
     "upThreshold", "headingThreshold", "jointsAtLimitThreshold", "rewardScale", "resetDofPosNoise",
     "resetDofVelNoise",
 )
+FORWARD_SPEED = Metric("forward_speed", PER_STEP)  # test mode: the torso's speed along +x (m/s), each step
 
 
 class LocomotionTask(VecTask):
@@ -198,13 +200,16 @@ class LocomotionTask(VecTask):
         # The motors' gear turns a command into a torque; MuJoCo clamps the command to the actuator's ctrlrange.
         self.sim.ctrl[:] = actions * self.env_numbers["powerScale"]
 
+    def declared_metrics(self) -> list[Metric]:
+        return [*super().declared_metrics(), FORWARD_SPEED]
+
     def refresh_state(self) -> None:
         self._refresh_torso_state()
         self.progress_speed[:] = self._speed_toward_target()
         self.prev_xy[:] = self.sim.root_pos[:, :2]
-        if self.record_eval_metrics:
+        if self.metrics.evaluating:
             # Speed of the torso along +x (world frame, m/s), before any reset replaces the state.
-            self.extras["eval_metrics"] = {"forward_speed": self.sim.root_lin_vel[:, 0].clone()}
+            self.metrics.record(FORWARD_SPEED, self.sim.root_lin_vel[:, 0].clone())
 
     def _speed_toward_target(self) -> torch.Tensor:
         """The drop in horizontal distance to the target over the step, / policy dt (IsaacGymEnvs' potential

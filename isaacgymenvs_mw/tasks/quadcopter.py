@@ -22,6 +22,7 @@ import math
 import torch
 
 from isaacgymenvs_mw.tasks.base.env_keys import positive_env_number
+from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP, Metric
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -37,6 +38,8 @@ THRUST_ACTION_SPEED_SCALE = 200.0     # N/s at action 1 (IGE)
 # default); MuJoCo does not, and a craft spun up by held full-thrust rotor tilts reached thousands of rad/s, where its
 # rotor hinges diverged. The same cap, applied once per policy step (env.maxAngularVelocity).
 MAX_ANGULAR_VELOCITY = 100.0          # rad/s
+TARGET_DISTANCE = Metric("target_distance", PER_STEP)  # test mode: m from the target, each step
+REACHED_TARGET = Metric("reached_target", OUTCOME)     # test mode: 1 for an episode that ended within REACHED_DISTANCE
 
 
 class Quadcopter(VecTask):
@@ -98,11 +101,14 @@ class Quadcopter(VecTask):
     def check_termination(self) -> torch.Tensor:
         return quadcopter_failed(self.sim.root_pos, self.target)
 
+    def declared_metrics(self) -> list[Metric]:
+        return [*super().declared_metrics(), TARGET_DISTANCE, REACHED_TARGET]
+
     def compute_reward(self) -> None:
         self.rew_buf[:] = compute_quadcopter_reward(self.sim.root_pos, self.sim.root_quat,
                                                     self.sim.root_ang_vel_world(), self.target)
-        if self.record_eval_metrics:  # test mode: how far from the target it flies, step by step (eval.json)
-            self.extras["eval_metrics"] = {"target_distance": torch.linalg.norm(self.sim.root_pos - self.target, dim=-1)}
+        if self.metrics.evaluating:  # test mode: how far from the target it flies, step by step (eval.json)
+            self.metrics.record(TARGET_DISTANCE, torch.linalg.norm(self.sim.root_pos - self.target, dim=-1))
 
     def observation_terms(self) -> list[ObsTerm]:
         sim = self.sim
@@ -114,11 +120,11 @@ class Quadcopter(VecTask):
 
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
-        if self.record_eval_metrics:
+        if self.metrics.evaluating:
             # Test mode: whether each ending episode ended at its target (eval.json reached_target). IGE's own rule
             # only fails a craft beyond 3 m or below 0.3 m, so this criterion is ours: within REACHED_DISTANCE.
             final = torch.linalg.norm(self.sim.root_pos - self.target, dim=-1)
-            self.extras["episode_outcomes"] = {"reached_target": (mask & (final < REACHED_DISTANCE)).float()}
+            self.metrics.record(REACHED_TARGET, (mask & (final < REACHED_DISTANCE)).float())
         self.sim.reset_worlds(mask)
         pos = self.initial_root_pos.expand(n, 3).clone()
         pos[:, 0:2] += 3.0 * torch.rand((n, 2), device=dev) - 1.5          # IGE: x, y += U(-1.5, 1.5)

@@ -13,6 +13,8 @@ A task writes, in torch on ``self.device``, the terms of VecTask's after-physics
     (``observation_terms()``, ``state_terms()``, ``image_terms()``) that VecTask's observations compute
   * optional ``refresh_state()`` (quantities the terms read) and ``after_reset(new_episode)`` (per-step bookkeeping
     that must see the new episodes, e.g. commands resampled on a timer)
+  * optional ``declared_metrics()`` -- what the task reports beyond its reward (``Metric(name, kind)``, recorded with
+    ``self.metrics.record``; ``tasks/base/metrics.py``)
 """
 
 from __future__ import annotations

@@ -1,16 +1,61 @@
-"""Reading VecTask's own keys of a task YAML's ``env`` section: the episode length, whole numbers and positive
-numbers with their one-line errors, and IsaacGymEnvs keys that have no counterpart here."""
+"""Reading VecTask's own keys of a task YAML's ``env`` section: the step's settings, the episode length, whole
+numbers and positive numbers with their one-line errors, and IsaacGymEnvs keys that have no counterpart here."""
 
 from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
+from typing import Mapping
 
+from isaacgymenvs_mw.sim import check_sim_keys
+from isaacgymenvs_mw.tasks.base.history import HistorySpec, parse_history
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # Episode-length keys of earlier versions and of IsaacGymEnvs' tasks (policy steps): refused, naming the new key.
 OLD_EPISODE_KEYS = ("maxEpisodeLength", "episodeLength")
+
+
+@dataclass(frozen=True)
+class TaskSettings:
+    """The keys of a task YAML that VecTask's construction reads (docs/config.md), checked."""
+
+    num_envs: int  # env.numEnvs
+    num_obs: int | None  # env.numObservations (0: derived from the task's declared terms)
+    num_states: int | None  # env.numStates (None: absent)
+    num_actions: int  # env.numActions
+    control_freq_inv: int  # env.controlFrequencyInv
+    clip_obs: float  # env.clipObservations
+    clip_actions: float  # env.clipActions
+    history: dict[str, HistorySpec]  # env.history
+    render_interval: int  # env.renderInterval
+    action_delay: int  # env.control.actionDelay (policy steps)
+    overflow_check_interval: int  # sim.overflowCheckInterval
+
+
+def task_settings(config: Mapping, declares_layout: bool) -> TaskSettings:
+    """The settings of a task's ``config`` (its ``env`` and ``sim`` sections), failing in one line naming the key.
+    ``declares_layout``: the task declares observation terms, so ``env.numObservations`` may be left out."""
+    env = config["env"]
+    refuse_removed_keys(env)
+    settings = TaskSettings(
+        num_envs=require_int(env, "numEnvs", minimum=1),
+        # A task that declares its observation terms derives these sizes; a YAML value must then agree.
+        num_obs=require_int(env, "numObservations", minimum=1, default=0 if declares_layout else None),
+        num_states=None if env.get("numStates") is None else require_int(env, "numStates", minimum=0),
+        num_actions=require_int(env, "numActions", minimum=1),
+        control_freq_inv=require_int(env, "controlFrequencyInv", minimum=1, default=1),
+        clip_obs=positive_env_number(env, "clipObservations", math.inf),
+        clip_actions=positive_env_number(env, "clipActions", math.inf),
+        history=parse_history(env),
+        render_interval=require_int(env, "renderInterval", minimum=1, default=1),
+        action_delay=whole_number(env.get("control", {}).get("actionDelay", 0), "env.control.actionDelay", 0),
+        overflow_check_interval=int(config.get("sim", {}).get("overflowCheckInterval", 500)),
+    )
+    check_sim_keys(config.get("sim", {}))
+    warn_unused_ige_keys(env)
+    return settings
 
 
 def episode_length(env: dict, control_dt: float, steps_in_code: int | None) -> tuple[int, float]:
@@ -79,7 +124,7 @@ def warn_unused_ige_keys(env: dict) -> list[str]:
     if present:
         warnings.warn("IsaacGymEnvs key(s) with no effect here: "
                       + "; ".join(f"env.{k} ({IGE_UNUSED_ENV_KEYS[k]})" for k in present)
-                      + ". Remove them from the task YAML to silence this.", RuntimeWarning, stacklevel=3)
+                      + ". Remove them from the task YAML to silence this.", RuntimeWarning, stacklevel=4)
     return present
 
 

@@ -7,10 +7,10 @@ were what a step cost beyond the physics. So, on CUDA:
   * after a few eager warm-up steps, the pre- and post-physics work are captured as two CUDA graphs
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
 Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
-VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics,
-sense (the sensors' refresh after the step's resets: the cameras render there, with Warp graphs of their own), and,
-when the task observes camera images, the image observation (torch), so that images show the state after the
-resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
+VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics
+(whose sequence refreshes the computed sensors, ``Simulator.sense()``), render (the cameras, after the step's resets,
+with Warp graphs of their own), and, when the task observes camera images, the image observation (torch), so that
+images show the state after the resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
 (``ImageStack``), so it is captured twice, once per buffer, and each step replays the one for its parity.
 
 Start-up: compiling the post-physics step (Inductor and Triton code generation, tens of seconds with cold caches)
@@ -27,13 +27,14 @@ call instead, as before.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 import time
 import types
 import warnings
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Iterator
 
 import torch
 
@@ -52,8 +53,23 @@ class StepPhases:
     before: Callable[[torch.Tensor], None]  # torch: clipped actions -> actuator commands (captured)
     physics: Callable[[], None]  # the simulator's controlFrequencyInv physics steps (its own graph)
     after: Callable[[], None]  # torch: terminations, reward, resets, observations (compiled, captured)
-    sense: Callable[[int], None]  # the sensors' refresh after the resets (Warp, with graphs of its own)
+    render: Callable[[int], None]  # the cameras' render after the resets (Warp, with graphs of its own)
     observe_images: Callable[[int], None] | None = None  # torch: the image observation (captured per parity)
+
+
+@contextlib.contextmanager
+def fresh_dict(owner: object, name: str) -> Iterator[None]:
+    """The step's torch work writes into an empty dict ``owner.<name>`` (VecTask's ``extras``), merged into the
+    run's afterwards. torch.compile guards on every entry of a dict the compiled step writes into, and the run's
+    entries are remade by each step (as inference tensors in training): guarded, they would make the first steps
+    compile the step again."""
+    kept = getattr(owner, name)
+    setattr(owner, name, {})
+    try:
+        yield
+    finally:
+        kept.update(getattr(owner, name))
+        setattr(owner, name, kept)
 
 
 class StepExecution:
@@ -102,14 +118,14 @@ class StepExecution:
             before.replay()
             self.physics()
             after.replay()
-            self.phases.sense(self.steps)
+            self.phases.render(self.steps)
             if self.phases.observe_images is not None:
                 self.graphs[2 + self.steps % 2].replay()
         else:
             self.before(actions)
             self.physics()
             self.after()
-            self.phases.sense(self.steps)
+            self.phases.render(self.steps)
             if self.phases.observe_images is not None:
                 self.phases.observe_images(self.steps)
         self.steps += 1

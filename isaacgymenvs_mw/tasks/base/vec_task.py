@@ -11,82 +11,66 @@ A task writes the terms of that sequence, not the sequence (``tasks/base/contrac
 
 Resets are boolean masks (an index tensor, as IsaacGymEnvs passes, is turned into one): ``nonzero()`` would make
 the step wait on the GPU. On CUDA the step's torch work is compiled and captured (``step_execution.py``), so the
-hooks stay device-only tensor code. A world that blew up (NaN/inf, or a speed past ``DIVERGED_SPEED``) is put back
-in the model's initial pose and marked in ``nonfinite_buf``; the sequence counts it as a termination (the task's
-``reset_idx`` places it, its reward is zeroed; ``sim.stability.BlowupLog`` names the joint that ran away).
+hooks stay device-only tensor code. The episode's buffers, its clock and blown-up worlds: ``episode.py`` (a blown-up
+world, marked in ``nonfinite_buf``, is a termination: the task's ``reset_idx`` places it, its reward is zeroed).
 A ported IsaacGymEnvs task may still override ``post_physics_step``; it then calls ``reset_envs(mask)`` itself, and
 ``self.sim.sense()`` before observing when it reads a computed sensor (IsaacGym's ``refresh_*_tensor``).
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
-from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, check_sim_keys, request_from_config, sim_dt
+from isaacgymenvs_mw.sim import ModelRequest, Simulator, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
-from isaacgymenvs_mw.tasks.base.env_keys import (episode_length, positive_env_number, refuse_removed_keys, require_int,
-                                                  warn_unused_ige_keys)
-from isaacgymenvs_mw.tasks.base.history import parse_history
+from isaacgymenvs_mw.tasks.base.display import Display
+from isaacgymenvs_mw.tasks.base.env_keys import episode_length, task_settings
+from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
+from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
-from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases
-from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
+from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases, fresh_dict
 from isaacgymenvs_mw.utils.device import resolve_device
 
-ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
 class VecTask:
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
-    # True: the episodes that end by ``check_success`` are counted as successes, logged as Episode/success (the rate
-    # over ended episodes) and in test mode's eval "success" (each env's first episode).
+    # True: the episodes that end by ``check_success`` are counted as successes, the metrics SUCCESS_RATE (logged as
+    # Episode/success, the rate over ended episodes) and SUCCESS (test mode's eval "success", each env's first episode).
     reports_success: bool = False
-    # Test mode (learning/runner.evaluate) sets it: a task then adds per-step, per-env metrics to
-    # extras["eval_metrics"] (the legged tasks' velocity tracking error, the runners' forward speed).
-    record_eval_metrics: bool = False
+    # IsaacGymEnvs' names for the buffers of ``self.episode`` (tasks/base/episode.py), read and written by tasks.
+    rew_buf, reset_buf, timeout_buf, progress_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
+    terminate_buf, success_buf, nonfinite_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
+    nonfinite_inputs_buf, nonfinite_inputs_count = EpisodeBuffer(), EpisodeBuffer()
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
         # graphics_device_id, virtual_screen_capture and force_render are IsaacGymEnvs' signature; nothing here uses
         # them (headless=False opens MuJoCo's viewer; capture_video records).
         self.cfg = config
-        env = config["env"]
         check_required_hooks(type(self), VecTask)
-        refuse_removed_keys(env)
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
         self.device = self.sim_device
-        self.headless = headless
-
-        self.num_environments = require_int(env, "numEnvs", minimum=1)
-        # A task that declares its observation terms derives these sizes; a YAML value must then agree.
         declares_layout = type(self).observation_terms is not VecTask.observation_terms
-        num_obs = require_int(env, "numObservations", minimum=1, default=0 if declares_layout else None)
-        num_states = None if env.get("numStates") is None else require_int(env, "numStates", minimum=0)
-        self.num_actions = require_int(env, "numActions", minimum=1)
-        self.control_freq_inv = require_int(env, "controlFrequencyInv", minimum=1, default=1)
-        self.clip_obs = positive_env_number(env, "clipObservations", math.inf)
-        self.clip_actions = positive_env_number(env, "clipActions", math.inf)
-        history = parse_history(env)
-        self.render_interval = require_int(env, "renderInterval", minimum=1, default=1)
+        settings = task_settings(config, declares_layout)
+        self.num_environments, self.num_actions = settings.num_envs, settings.num_actions
+        self.control_freq_inv, self.render_interval = settings.control_freq_inv, settings.render_interval
+        self.clip_obs, self.clip_actions = settings.clip_obs, settings.clip_actions
+        self.overflow_check_interval = settings.overflow_check_interval
         self.act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
 
-        sim_cfg = config.get("sim", {})
-        check_sim_keys(sim_cfg)
-        warn_unused_ige_keys(env)
-        self.overflow_check_interval = int(sim_cfg.get("overflowCheckInterval", 500))
-
         # Parsed before the model is built: it decides which Model fields get one value per world.
-        self.randomizer = Randomizer(config.get("task"), sim_dt(sim_cfg) * self.control_freq_inv,
+        self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
                                      self.num_environments, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
@@ -95,17 +79,15 @@ class VecTask:
         self.dt = self.sim.dt
         self.control_dt = self.dt * self.control_freq_inv
         self.max_episode_length, self.max_episode_length_s = episode_length(
-            env, self.control_dt, getattr(self, "max_episode_length", None))
+            config["env"], self.control_dt, getattr(self, "max_episode_length", None))
         self.check_action_size()
-        self.blowups = BlowupLog(self.sim)  # which joint ran away: named by the periodic check in step()
-        self._setup_randomization()
-
-        self.viewer = None
-        self.video_recorder = None  # a sim.video.VideoRecorder when capture_video is on (launch.run attaches it)
-        self.set_viewer()
+        self.randomizer.bind(self.sim)  # the randomisation layer, on the built model
+        self.randomizer.setup_delay(settings.action_delay, self.num_actions)
+        self.display = Display(self.sim, headless)
+        self.headless = self.display.headless
         self.observations = Observations(
-            type(self).__name__, self.num_envs, self.device, self.rl_device, num_obs, num_states, self.clip_obs,
-            history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
+            type(self).__name__, self.num_envs, self.device, self.rl_device, settings.num_obs, settings.num_states,
+            self.clip_obs, settings.history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
         self.allocate_buffers()
         # Warp's kernels have been compiling in the background since create_sim: wait for them now, or, with a compiled
         # step, at the first step, while the step compiles (StepExecution.run).
@@ -125,74 +107,27 @@ class VecTask:
         """What ``create_sim`` asks the sim layer to build: ``env.asset``, ``env.assets``, ``env.control``,
         ``env.plane``, ``env.baseInitState`` and ``sim`` (``sim.request.request_from_config``); tasks may extend it
         (more contact bodies, per-world fields, ...)."""
-        request, self._torque_speed = request_from_config(self.cfg["env"], self.cfg.get("sim", {}),
-                                                          self.cfg.get("yaml_dir"), ASSETS_DIR)
-        return request
+        return yaml_model_request(self.cfg)
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
-        sim = self.cfg.get("sim", {})
-        # The randomised quantities' fields, and the force ranges a torque-speed limit rewrites, are per world.
-        fields = tuple(per_world_fields) + self.randomizer.per_world_fields()
-        fields += ("actuator_forcerange",) if getattr(self, "_torque_speed", None) else ()
-        return Simulator(
-            build_model(request),
-            num_worlds=self.num_environments,
-            device=self.sim_device,
-            substeps=self.control_freq_inv,
-            nconmax=sim.get("nconmax"),
-            njmax=sim.get("njmax"),
-            per_world_fields=tuple(dict.fromkeys(fields)),
-            use_graphs=sim.get("useGraphs"),
-            deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
-            cameras=request.cameras,
-            sensors=request.all_sensors(),
-        )
-
-    def _setup_randomization(self) -> None:
-        """Actuator realism (torque-speed limit, action delay) and the randomisation layer, on the built model."""
-        limits = getattr(self, "_torque_speed", {})
-        if limits:
-            m = self.sim.mj_model
-            joint_of = [m.joint(int(j)).name for j in m.actuator_trnid[:, 0]]
-            params = np.array([limits.get(j, (math.inf,) * 3) for j in joint_of], dtype=np.float64).reshape(-1, 3)
-            self.sim.enable_torque_speed_limit(params[:, 0], params[:, 1], params[:, 2])
-        self.randomizer.bind(self.sim)
-        delay = self.cfg["env"].get("control", {}).get("actionDelay", 0)
-        self.randomizer.setup_delay(whole_number(delay, "env.control.actionDelay", 0), self.num_actions)
+        """The Simulator of ``request``, with ``per_world_fields`` and the randomised quantities' fields per world."""
+        return build_simulator(self.cfg, request, self.num_environments, self.sim_device, self.control_freq_inv,
+                               tuple(per_world_fields) + self.randomizer.per_world_fields())
 
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
-        self.rew_buf = torch.zeros(n, device=dev, dtype=torch.float)
-        self.reset_buf = torch.ones(n, device=dev, dtype=torch.long)
-        self.timeout_buf = torch.zeros(n, device=dev, dtype=torch.long)
-        self.progress_buf = torch.zeros(n, device=dev, dtype=torch.long)
+        self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim),
+                               shared_sequence=type(self).post_physics_step is VecTask.post_physics_step)
         self.extras: dict[str, Any] = {}
+        self.metrics = TaskMetrics(self.declared_metrics)  # recorded by the task's step, read by learning/
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
-        self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
-        self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
-        self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
-        # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
-        # timeout_buf; a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
-        self._shared_sequence = type(self).post_physics_step is VecTask.post_physics_step
-        self.terminate_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # failed this step, blown-up included
-        self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         images = None if self.observations.images is None else self._observe_images
         self.execution = StepExecution(
-            type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics, self._sense,
-                                            images), self.cfg.get("sim", {}),
+            type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics,
+                                            self._render_cameras, images), self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
             action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
         )
-
-    def set_viewer(self) -> None:
-        """Open MuJoCo's viewer on env 0 unless headless; without a display, say so once and go on headless."""
-        if self.headless:
-            return
-        from isaacgymenvs_mw.sim.viewer import open_viewer  # deferred: only interactive runs need GLFW
-
-        self.viewer = open_viewer(self.sim)
-        if self.viewer is None:
-            self.headless = True
 
     # -------------------------------------------------------------- properties
     @property
@@ -267,7 +202,7 @@ class VecTask:
     def compute_observations(self) -> None:
         """Fill ``obs_buf`` (and ``states_buf``) from the declared terms; a task without terms overrides this."""
         if self.observations.obs_layout is None:
-            raise NotImplementedError(self.missing_hook_message("compute_observations"))
+            raise NotImplementedError(hook_message(type(self), "compute_observations"))
         self.observations.compute()
 
     def deployment_info(self) -> dict[str, Any]:
@@ -290,22 +225,13 @@ class VecTask:
         """The after-physics sequence every task shares; tasks fill its terms (module docstring), not the order."""
         self.progress_buf += 1
         self.refresh_state()
-        # Blown-up worlds are terminations: the task's reset_idx places them and closes their episodes.
-        self.terminate_buf.copy_(self.check_termination() | self.nonfinite_buf)
-        self.success_buf.copy_(self.check_success() & ~self.terminate_buf)
-        timeout = self.timed_out(self.progress_buf)
-        self.timeout_buf.copy_(timeout & ~self.nonfinite_buf)
-        self.reset_buf.copy_(self.terminate_buf | self.success_buf | timeout)
+        self.episode.close_step(self.check_termination, self.check_success)  # which episodes end, and how
         self.compute_reward()
         new_episode = self.reset_buf != 0
         self.reset_envs(new_episode)
         self.after_reset(new_episode)
         self.sim.sense()
         self.compute_observations()
-
-    def timed_out(self, episode_step: torch.Tensor) -> torch.Tensor:
-        """(num_envs,) bool: episodes at their time limit after ``episode_step`` steps (the one formula of it)."""
-        return episode_step >= self.max_episode_length - 1
 
     def refresh_state(self) -> None:
         """Derive, after the physics, the quantities the terms read (base velocities, contact forces, ...)."""
@@ -322,19 +248,22 @@ class VecTask:
     def compute_reward(self) -> None:
         raise NotImplementedError(hook_message(type(self), "compute_reward"))
 
+    def declared_metrics(self) -> list[Metric]:
+        """What the task reports beyond its reward (tasks/base/metrics.py), recorded in its step with
+        ``self.metrics.record(metric, value)``; read once, before the first step. Tasks add theirs to these."""
+        return [SUCCESS_RATE, SUCCESS] if self.reports_success else []
+
     def reset_envs(self, env_ids: torch.Tensor) -> None:
         """Reset the selected envs: the randomisation layer draws their new model values first (so the task's
         reset sees the world it will run in), then the task's ``reset_idx``; the reward helper, when the task has
         one, reports their episode sums (``extras["episode_terms"]``), and, with ``reports_success``, which of them
-        succeeded."""
+        succeeded (the metrics SUCCESS_RATE and SUCCESS)."""
         mask = self.env_mask(env_ids)
         self.randomizer.on_reset(mask)
         self.reset_idx(mask)
-        self.progress_buf.masked_fill_(mask, 0)  # the episode clock is VecTask's: reset_idx only places things
+        self.episode.restart(mask)
         if self.reports_success:
-            success = (self.success_buf & mask).float()
-            self.extras.setdefault("episode_metrics", {})["success"] = success.sum()
-            self.extras.setdefault("episode_outcomes", {})["success"] = success
+            self.metrics.record_successes(self.success_buf & mask)
         if self.rewards is not None:
             self.extras["episode_terms"] = self.rewards.finish_episodes(mask)
 
@@ -345,9 +274,6 @@ class VecTask:
 
     def after_reset(self, new_episode: torch.Tensor) -> None:
         """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
-
-    def missing_hook_message(self, name: str) -> str:
-        return hook_message(type(self), name)
 
     def check_action_size(self) -> None:
         """``env.numActions`` must equal the model's actuator count, checked at construction. A task whose actions
@@ -367,44 +293,22 @@ class VecTask:
     # ---------------------------------------------------------------- contract
     def env_mask(self, env_ids: torch.Tensor) -> torch.Tensor:
         """A boolean (num_envs,) mask from a mask or an index tensor (IsaacGymEnvs passes indices)."""
-        if env_ids.dtype == torch.bool:
-            return env_ids
-        mask = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        mask[env_ids.to(self.device, torch.long)] = True
-        return mask
+        return self.episode.mask(env_ids)
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
-        with self._step_extras():
+        self.metrics.begin_step()
+        with fresh_dict(self, "extras"):
             self.execution.run(actions)  # the step's phases: eager, compiled or captured
 
-        # The learner bootstraps the value of the episodes in "time_outs": time-outs and successes.
-        self.extras["time_outs"] = (self.timeout_buf | self.success_buf).to(self.rl_device)
-        self.extras["successes"] = self.success_buf.to(self.rl_device)
-        self.extras["nonfinite_resets"] = self.nonfinite_buf
-        self.extras["nonfinite_inputs"] = self.nonfinite_inputs_buf
+        self.extras.update(self.episode.step_extras(self.rl_device))
         self.observations.step_outputs(self.obs_dict, self.execution.steps)
 
         if self.control_steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
-            self.blowups.poll(self.overflow_check_interval)
-        if self.viewer is not None:
-            self.render()
-        if self.video_recorder is not None:
-            self.video_recorder.capture(self.control_steps)
+            self.episode.blowups.poll(self.overflow_check_interval)
+        self.display.show(self.control_dt, self.control_steps)
         return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
-
-    @contextlib.contextmanager
-    def _step_extras(self) -> Iterator[None]:
-        """The step's torch work writes into an empty ``extras``, merged into the run's afterwards. torch.compile
-        guards on every entry of a dict the compiled step writes into, and the run's entries are remade by each step
-        (as inference tensors in training): guarded, they would make the first steps compile the step again."""
-        extras, self.extras = self.extras, {}
-        try:
-            yield
-        finally:
-            extras.update(self.extras)
-            self.extras = extras
 
     def _before_physics(self, actions: torch.Tensor) -> None:
         action_tensor = torch.clamp(actions.to(self.device), -self.clip_actions, self.clip_actions)
@@ -413,39 +317,13 @@ class VecTask:
 
     def _after_physics(self) -> None:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
-        # A world whose state blew up (NaN/inf) goes back to the model's initial state before the task reads it;
-        # its episode restarts and the step is reported as a termination, so training goes on.
-        blown_up = self.blowups.reset_nonfinite()
-        self.progress_buf.masked_fill_(blown_up, 0)
-        # Tasks read it while computing rewards: quantities the physics derives from the state (body positions and
-        # velocities) are still non-finite in those worlds until the next physics step.
-        self.nonfinite_buf.copy_(blown_up)
-
-        # post_physics_step adds one to progress_buf and may reset envs (which zeroes it); the step count at
-        # which an episode ended is therefore taken before, so timeouts survive an in-step reset.
-        episode_step = self.progress_buf + 1
-        self.post_physics_step()
-        # The blown-up step earns nothing and its env starts the next step at progress 0, like any reset env.
-        self.rew_buf.masked_fill_(blown_up, 0.0)
-        self.progress_buf.masked_fill_(blown_up, 0)
-        self.reset_buf |= blown_up
-        if self._shared_sequence:  # post_physics_step set timeout_buf by the task's clock (which a task may move)
-            self.timeout_buf &= (self.reset_buf != 0) & ~blown_up
-        else:  # a ported post_physics_step resets envs itself: their step count is taken from before it ran
-            self.timeout_buf.copy_(self.timed_out(episode_step) & (self.reset_buf != 0) & ~blown_up)
+        self.episode.after_physics(self.post_physics_step)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
-        # The learner's last line of defence: a NaN or inf that escaped the blow-up reset (a term dividing by a zero
-        # distance, a quantity the reset does not refresh) would make one sample's loss NaN and, through one Adam
-        # step, every weight. Such values become 0 and their worlds are counted (extras["nonfinite_inputs"]).
-        bad = ~torch.isfinite(self.rew_buf)
-        torch.nan_to_num(self.rew_buf, nan=0.0, posinf=0.0, neginf=0.0, out=self.rew_buf)
-        bad |= self.observations.finish_step(self.reset_buf != 0)  # an env reset in this step starts its history
-        self.nonfinite_inputs_buf.copy_(bad)
-        self.nonfinite_inputs_count += bad.sum()
+        self.episode.guard_inputs(self.observations.finish_step)  # an env reset in this step starts its history
 
-    def _sense(self, step: int) -> None:
-        """The sense phase, after the step's resets (and after a reset): the sensors show the state the observation
+    def _render_cameras(self, step: int) -> None:
+        """The render phase, after the step's resets (and after a reset): the images show the state the observation
         describes. The cameras render (Warp, one graph on CUDA) every ``env.renderInterval`` steps (a host counter:
         no sync); between renders their images stay those of the last one."""
         if step % self.render_interval == 0:
@@ -465,25 +343,22 @@ class VecTask:
     def reset(self) -> dict[str, torch.Tensor]:
         """Reset every env and return the first observations (call once before stepping)."""
         self._built_observations()
-        self.reset_envs(self._all_envs)
-        self.sim.sense()
-        self.observations.compute_checked(self.compute_observations)
-        self.randomizer.observations(self.obs_buf)
-        return self._reset_outputs(self._all_envs)
+        return self._reset(self._all_envs, lambda: self.observations.compute_checked(self.compute_observations))
 
     def reset_done(self) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Reset the envs whose reset_buf is set; returns (obs_dict, their indices)."""
         done = self.reset_buf != 0
-        self.reset_envs(done)
-        self.sim.sense()
-        self.compute_observations()
-        self.randomizer.observations(self.obs_buf)
-        return self._reset_outputs(done), done.nonzero(as_tuple=False).flatten()
+        return self._reset(done, self.compute_observations), done.nonzero(as_tuple=False).flatten()
 
-    def _reset_outputs(self, new_episode: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The observations after a reset, through the step's own sense phase; ``new_episode`` envs forget their
-        past frames."""
-        self._sense(self.execution.steps)
+    def _reset(self, new_episode: torch.Tensor, observe: Callable[[], None]) -> dict[str, torch.Tensor]:
+        """Reset the envs of ``new_episode`` and observe them (``observe``) after the sense phase; the images come
+        through the step's own render phase, and ``new_episode`` envs forget their past frames."""
+        self.metrics.begin_step()
+        self.reset_envs(new_episode)
+        self.sim.sense()
+        observe()
+        self.randomizer.observations(self.obs_buf)
+        self._render_cameras(self.execution.steps)
         return self.observations.reset_outputs(self.obs_dict, new_episode, self.execution.steps)
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
@@ -498,17 +373,11 @@ class VecTask:
 
     # --------------------------------------------------------------- rendering
     def render(self, mode: str = "rgb_array") -> None:
-        if self.viewer is not None and not self.viewer.sync(self.control_dt):
-            self.viewer = None  # the user closed the window: keep training
-        return None
+        """IsaacGymEnvs' render: the viewer (``self.display``, tasks/base/display.py) shows env 0."""
+        self.display.sync_viewer(self.control_dt)
 
     def close(self) -> None:
-        if self.video_recorder is not None:
-            self.video_recorder.close()  # writes out a clip in progress
-            self.video_recorder = None
-        if self.viewer is not None:
-            self.viewer.close()
-            self.viewer = None
+        self.display.close()
 
     # ------------------------------------------------------ forces on bodies (IsaacGym's force tensors)
     def apply_body_forces(self, forces: torch.Tensor | None = None, torques: torch.Tensor | None = None,

@@ -1,0 +1,39 @@
+"""How VecTask asks the sim layer for its simulator: the model the task YAML requests, and the Simulator built from
+a request (``VecTask.model_request`` / ``VecTask.make_simulator`` call these; tasks extend the request between)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, request_from_config
+
+ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
+
+
+def yaml_model_request(cfg: Mapping) -> ModelRequest:
+    """``env.asset``, ``env.assets``, ``env.control`` (torque-speed limits included), ``env.plane``,
+    ``env.baseInitState``, ``env.cameras``, ``env.sensors`` and ``sim`` (``sim.request.request_from_config``);
+    relative asset roots are read from the task YAML's folder (``yaml_dir``)."""
+    return request_from_config(cfg["env"], cfg.get("sim", {}), cfg.get("yaml_dir"), ASSETS_DIR)
+
+
+def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: str, substeps: int,
+                    per_world_fields: tuple[str, ...]) -> Simulator:
+    """The Simulator of ``request``: ``num_envs`` worlds on ``device``, ``substeps`` physics steps per env step, the
+    ``per_world_fields`` batched (the task's and the randomised quantities'), the YAML's ``sim`` sizes and options."""
+    sim = cfg.get("sim", {})
+    return Simulator(
+        build_model(request),
+        num_worlds=num_envs,
+        device=device,
+        substeps=substeps,
+        nconmax=sim.get("nconmax"),
+        njmax=sim.get("njmax"),
+        per_world_fields=tuple(dict.fromkeys(per_world_fields)),
+        use_graphs=sim.get("useGraphs"),
+        deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
+        cameras=request.cameras,
+        sensors=request.all_sensors(),
+        torque_speed=request.torque_speed,
+    )
