@@ -364,3 +364,16 @@ print(seen == [1], signal.getsignal(signal.SIGTERM) is PROCESS_STOP._handler,
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split() == ["True", "True", "True", "None"], out.stdout
+
+
+def test_a_task_with_equality_constraints_compiles_its_step_once():
+    # The blow-up check reads the equality rows' residuals inside the compiled step (the Panda's coupled fingers): a
+    # MuJoCo enum converted there made torch.compile's tracing recurse without end, and the step failed.
+    task = isaacgymenvs_mw.make("FrankaCabinet", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
+                                overrides=["+task.sim.compileStep=True"])
+    assert task.step_execution == "compiled" and task.sim.equality_violation() is not None
+    task.reset()
+    for i in range(4):
+        with torch._dynamo.config.patch(error_on_recompile=i > 1):
+            obs, rew, _, _ = task.step(torch.zeros(2, task.num_actions))
+    assert bool(torch.isfinite(obs["obs"]).all()) and bool(torch.isfinite(rew).all())

@@ -36,6 +36,9 @@ DIVERGED_SPEED = 1.0e4
 # orientations and joint equalities). Soft constraints under load give millimetres; a closed chain whose drives
 # diverge can drift metres apart at finite, modest speeds (sim/stability.py).
 EQUALITY_DIVERGED = 0.1
+# The constraint type of an equality row, as a plain int read once: the compiled step must not convert MuJoCo's enum
+# itself (torch.compile's tracing of int() on it recursed without end under torch 2.13).
+_EQUALITY_ROW = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
 
 # Overflow bits we report, and the task YAML key that fixes each.
 _OVERFLOW_KEYS = {
@@ -451,7 +454,7 @@ class Simulator:
             return None
         efc_type, efc_id, efc_pos, nefc, column = self._efc
         # Rows past a world's count hold what an earlier step left there.
-        rows = (efc_type == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)) & (column < nefc.view(-1, 1))
+        rows = (efc_type == _EQUALITY_ROW) & (column < nefc.view(-1, 1))
         residual = torch.where(rows, efc_pos.abs(), torch.zeros_like(efc_pos))
         worst = residual.argmax(dim=1, keepdim=True)
         return residual.gather(1, worst).squeeze(1), efc_id.gather(1, worst).squeeze(1)

@@ -444,7 +444,7 @@ class Randomizer:
             obs.copy_(self.combine(self.obs_noise, obs, self.sample(self.obs_noise, obs.shape)))
 
     def count_step(self) -> None:
-        self.step_count += 1.0
+        self.step_count.add_(1.0)  # in place: the reward curriculum holds this tensor (a compiled += would rebind it)
 
     # ---------------------------------------------------------------- delay
     def setup_delay(self, nominal: int, num_actions: int) -> None:
