@@ -136,6 +136,9 @@ class InHandTask(VecTask):
             self.push_forces = torch.zeros((n, 1, 3), device=dev)  # cube frame (IGE: LOCAL_SPACE), N
             self.push_prob = torch.zeros(n, device=dev)
             self._draw_push_prob(torch.ones(n, dtype=torch.bool, device=dev))
+            # A zero push now: the simulator's force buffer exists before the step is compiled, so the compiled step
+            # does not meet a new model at the first real push and compile again.
+            self.apply_body_forces(self.push_forces, bodies=[self.cube_body], frame="body")
         self.bind_hand()
         self.build_observation_layouts()
 
