@@ -181,3 +181,11 @@ def test_spin_is_capped_at_max_angular_velocity_with_its_direction_kept(env):
 def test_max_angular_velocity_must_be_positive():
     with pytest.raises(ConfigError, match=r"^task\.env\.maxAngularVelocity=0\.0 is invalid: give a number > 0"):
         make("Quadcopter", num_envs=1, overrides=("task.env.maxAngularVelocity=0",))
+
+
+def test_joint_limits_are_the_rotor_hinges_thirty_degrees(env):
+    lower, upper = env.sim.joint_limits()  # the dofs in dof_pos order: IGE's ±30° on every rotor hinge
+    assert lower.shape == (8,) and torch.allclose(lower, torch.full((8,), -math.pi / 6), atol=1e-6)
+    assert torch.allclose(upper, torch.full((8,), math.pi / 6), atol=1e-6)
+    one_lower, _ = env.sim.joint_limits(["rotor_roll2"])  # by name
+    assert one_lower.tolist() == pytest.approx([-math.pi / 6])

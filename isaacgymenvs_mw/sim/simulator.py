@@ -553,6 +553,14 @@ class Simulator:
         return torch.cat((self.xpos[:, ids], self.xquat[:, ids], self.body_lin_vel(ids, com=com),
                           self.cvel[:, ids, :3]), dim=-1)
 
+    def joint_limits(self, names: list[str] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(lower, upper): the model's range of each named joint (default: ``dof_names``, the columns of
+        ``dof_pos``), float32 on the device; m or rad."""
+        m = self.mj_model
+        ranges = m.jnt_range[[m.joint(name).id for name in (self.dof_names if names is None else names)]]
+        limits = torch.tensor(ranges, dtype=torch.float32, device=self.device)
+        return limits[:, 0], limits[:, 1]
+
     def root_ang_vel_world(self) -> torch.Tensor:
         """(N, 3) floating base angular velocity in the world frame (``root_ang_vel`` is in the body frame), from
         the current ``qpos``/``qvel``."""

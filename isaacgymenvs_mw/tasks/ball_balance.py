@@ -56,9 +56,7 @@ class BallBalance(VecTask):
         self.leg_torques = self._leg_sensors(env, "legTorqueSensors")
         self.ball = self.sim.asset(BALL)
         self.knees = [self.sim.dof_names.index(j) for j in self.sim.actuator_joints]
-        lower, upper = self.sim.mj_model.jnt_range[[self.sim.mj_model.joint(j).id for j in self.sim.actuator_joints]].T
-        self.knee_lower = torch.tensor(lower, dtype=torch.float32, device=dev)
-        self.knee_upper = torch.tensor(upper, dtype=torch.float32, device=dev)
+        self.knee_lower, self.knee_upper = self.sim.joint_limits(self.sim.actuator_joints)
         self.dof_position_targets = torch.zeros((n, 3), device=dev)
         self.fresh = torch.ones(n, dtype=torch.bool, device=dev)  # first step of an episode: no action (IGE)
         self.build_observation_layouts()

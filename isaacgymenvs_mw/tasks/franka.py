@@ -46,8 +46,7 @@ class FrankaArm:
             raise ConfigError(f"{task}: env.asset's first actuators must be {list(SERVOS)}; the model's are "
                               f"{sim.actuator_names}")
         m, dev = sim.mj_model, sim.device
-        ranges = torch.tensor(np.array([m.joint(j).range for j in expected]), dtype=torch.float32, device=dev)
-        self.dof_lower, self.dof_upper = ranges[:, 0], ranges[:, 1]  # (9,)
+        self.dof_lower, self.dof_upper = sim.joint_limits()  # (9,): the dofs are `expected`, checked above
         servo = torch.tensor(np.array([m.actuator(a).ctrlrange for a in SERVOS]), dtype=torch.float32, device=dev)
         self.target_lower, self.target_upper = servo[:, 0], servo[:, 1]  # (8,): joint ranges, gripper 0 ... 0.04
         self.num_targets = len(SERVOS)

@@ -99,8 +99,7 @@ class InHandTask(VecTask):
                               "fixBaseLink: False")
         m = self.sim.mj_model
         joint_ids = [m.joint(name).id for name in self.sim.dof_names]
-        self.dof_lower = torch.tensor(m.jnt_range[joint_ids, 0], dtype=torch.float32, device=dev)
-        self.dof_upper = torch.tensor(m.jnt_range[joint_ids, 1], dtype=torch.float32, device=dev)
+        self.dof_lower, self.dof_upper = self.sim.joint_limits()
         servos = range(self.num_actions)
         self.target_lower = torch.tensor(m.actuator_ctrlrange[servos, 0], dtype=torch.float32, device=dev)
         self.target_upper = torch.tensor(m.actuator_ctrlrange[servos, 1], dtype=torch.float32, device=dev)

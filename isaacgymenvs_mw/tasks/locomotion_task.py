@@ -88,8 +88,7 @@ class LocomotionTask(VecTask):
         if unlimited:
             raise ConfigError(f"{name}: joints {unlimited} have no range; the observation scales joint positions "
                              "to [-1, 1] by their limits, so give each joint a range in the MJCF")
-        limits = torch.tensor(m.jnt_range[joint_ids], device=dev, dtype=torch.float)
-        self.dof_lower, self.dof_upper = limits[:, 0], limits[:, 1]
+        self.dof_lower, self.dof_upper = self.sim.joint_limits()
         # Actuator i's joint, as a column of dof_pos / dof_vel.
         self.actuated_dof = torch.tensor([dofs.index(j) for j in joints], device=dev, dtype=torch.long)
         gear = torch.tensor(m.actuator_gear[:, 0], device=dev, dtype=torch.float)

@@ -58,9 +58,7 @@ class Quadcopter(VecTask):
                 f"env.rotorBodies={self.rotor_bodies} is invalid: give the 4 rotor bodies of the asset "
                 f"({env['asset']['assetFileName']}); not in the model: {missing}; its bodies: {self.sim.body_names[1:]}")
         n, dev = self.num_envs, self.device
-        lower, upper = self.sim.mj_model.jnt_range[self._joint_ids()].T
-        self.dof_lower_limits = torch.tensor(lower, dtype=torch.float32, device=dev)
-        self.dof_upper_limits = torch.tensor(upper, dtype=torch.float32, device=dev)
+        self.dof_lower_limits, self.dof_upper_limits = self.sim.joint_limits()
         self.dof_position_targets = torch.zeros((n, 8), device=dev)
         self.thrusts = torch.zeros((n, 4), device=dev)
         self.forces = torch.zeros((n, 4, 3), device=dev)
@@ -70,9 +68,6 @@ class Quadcopter(VecTask):
         self.initial_root_pos = self.sim.root_pos[0].clone()
         self.initial_root_quat = self.sim.root_quat[0].clone()
         self.build_observation_layouts()
-
-    def _joint_ids(self) -> list[int]:
-        return [self.sim.mj_model.joint(name).id for name in self.sim.dof_names]
 
     def check_action_size(self) -> None:
         # 12 actions for 8 joint drives: the 4 thrusts are forces (module docstring), not actuators.
