@@ -2,9 +2,9 @@
 
 VecTask shows the buffers under IsaacGymEnvs' names (``progress_buf``, ``reset_buf``, ``timeout_buf``, ``rew_buf``,
 ...; ``EpisodeBuffer``): each name reads the episode's tensor, so that a task's hooks and a captured step see one
-state. The time limit
-has one formula (``timed_out``); a blown-up world (NaN/inf, or a speed past ``DIVERGED_SPEED``) is put back in the
-model's initial pose, its step counted as a termination that earns nothing (``after_physics``).
+state. The time limit has one formula (``timed_out``); a blown-up world (NaN/inf, or a speed past
+``DIVERGED_SPEED``) is put back in the model's initial pose, its step counted as a termination that earns nothing
+(``after_physics``).
 """
 
 from __future__ import annotations
