@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
-from isaacgymenvs_mw.learning.sweep import SMOOTHING, expand, metric_key, summarise
+from isaacgymenvs_mw.learning.sweep import SMOOTHING, expand, metric_key, summarise, visible_gpus
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
@@ -34,6 +34,17 @@ def reference_row(values: list[float]) -> tuple[float, float]:
     """Final and best of trailing means over SMOOTHING values, by numpy (fewer values at the start)."""
     means = [float(np.mean(values[max(0, i + 1 - SMOOTHING):i + 1])) for i in range(len(values))]
     return means[-1], max(means)
+
+
+@pytest.mark.parametrize("parent, count, jobs", [
+    (None, 4, ["0", "1", "2", "3"]),          # no restriction: the indexes
+    ("2,3", 2, ["2", "3"]),                   # the host's GPUs 2 and 3, not its 0 and 1
+    (" 3, 1 ", 2, ["3", "1"]),                # the parent's order, spaces dropped
+    ("GPU-aa,GPU-bb", 2, ["GPU-aa", "GPU-bb"]),  # UUIDs pass through
+    ("1,7", 1, ["1"]),                        # CUDA stops at the first GPU that does not exist
+])
+def test_a_sweep_hands_each_job_one_of_the_gpus_its_parent_was_given(parent, count, jobs):
+    assert visible_gpus(parent, count) == jobs
 
 
 def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_metric():

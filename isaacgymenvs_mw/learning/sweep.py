@@ -71,7 +71,7 @@ class Job:
     label: str
     runs_dir: Path
     log: Path
-    gpu: int | None = None
+    gpu: str | None = None  # its CUDA_VISIBLE_DEVICES entry
     process: subprocess.Popen | None = None
     returncode: int | None = None  # the training's
     echo: bool = False
@@ -162,17 +162,29 @@ def _compose(overrides: list[str], options: list[str]):
     return cfg
 
 
-def _gpus_for(cfg) -> list[int]:
-    """The GPUs jobs can run on side by side: every visible one when the run's devices are CUDA, else none."""
+def _gpus_for(cfg) -> list[str]:
+    """The GPUs jobs can run on side by side, as ``CUDA_VISIBLE_DEVICES`` entries: every GPU this process sees when
+    the run's devices are CUDA, else none. Under ``CUDA_VISIBLE_DEVICES=2,3`` they are "2" and "3", not the indexes
+    0 and 1, which a job's own ``CUDA_VISIBLE_DEVICES`` would read as the host's first two GPUs."""
     devices = {str(cfg.get("sim_device", "auto")), str(cfg.get("rl_device", "auto"))}
     if any(d == "cpu" for d in devices):
         return []
     import torch
 
-    return list(range(torch.cuda.device_count())) if torch.cuda.is_available() else []
+    if not torch.cuda.is_available():
+        return []
+    return visible_gpus(os.environ.get("CUDA_VISIBLE_DEVICES"), torch.cuda.device_count())
 
 
-def _launch_all(jobs: list[Job], gpus: list[int], options: list[str], train_script: Path, stopped: list[int],
+def visible_gpus(cuda_visible_devices: str | None, count: int) -> list[str]:
+    """The ``count`` GPUs this process sees, named as a child's ``CUDA_VISIBLE_DEVICES`` must name them: the parent's
+    own entries (indexes or UUIDs) in order when it has that variable, else the indexes 0 .. count-1."""
+    if cuda_visible_devices is None or not cuda_visible_devices.strip():
+        return [str(i) for i in range(count)]
+    return [entry.strip() for entry in cuda_visible_devices.split(",")][:count]
+
+
+def _launch_all(jobs: list[Job], gpus: list[str], options: list[str], train_script: Path, stopped: list[int],
                 echo: bool, evaluate: bool = False) -> None:
     """Run the jobs, as many at once as there are GPUs (one at a time without); with ``evaluate``, each job's last
     checkpoint is evaluated in test mode on the job's GPU as soon as its training ends."""
