@@ -16,6 +16,9 @@
 #             consecutive_successes >= 10 within 30 minutes)
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
 #   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
+#   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
+# SEEDS=1,2 and BUDGET=600 (training seconds) replace a sweep's seeds and budget; CUDA_VISIBLE_DEVICES=2,3 keeps it
+# to those GPUs, so two sweeps can share a 4-GPU machine.
 # A budget over one device call (10 minutes) runs detached and is waited for in the next call:
 #   call 1: setsid nohup bash benchmarks/gpu_learning.sh stack /tmp/l > /tmp/l.log 2>&1 &
 #   call 2: while [ ! -f /tmp/l/done ]; do sleep 10; done; cat /tmp/l/sweeps/*/sweep.md
@@ -23,23 +26,25 @@ set -uo pipefail
 name=$1; out=$2
 mkdir -p "$out"; rm -f "$out/done"
 sweep() {  # BUDGET_S OVERRIDES...: the sweep, stopped by SIGTERM once its training budget (plus start-up) is spent
-  local budget=$1; shift
+  local budget=${BUDGET:-$1}; shift
   timeout --preserve-status -s TERM $((budget + 90)) python3 train.py -m headless=True sweep_eval=True \
     runs_dir="$out" "$@"
   echo "sweep ended with status $?"
 }
 case "$name" in
-  lift) sweep 300 task=FrankaCubeLift seed=1,2,3,4 ;;
-  lift_novn) sweep 300 task=FrankaCubeLift seed=1,2,3,4 train.algorithm.normalize_value=False ;;
-  lift_asym) sweep 300 task=FrankaCubeLift seed=1,2,3,4 task.env.asymmetric_observations=True ;;
-  stack) sweep 900 task=FrankaCubeStack seed=1,2 +train.algorithm.normalize_value=True \
+  lift) sweep 300 task=FrankaCubeLift seed=${SEEDS:-1,2,3,4} ;;
+  lift_novn) sweep 300 task=FrankaCubeLift seed=${SEEDS:-1,2,3,4} train.algorithm.normalize_value=False ;;
+  lift_asym) sweep 300 task=FrankaCubeLift seed=${SEEDS:-1,2,3,4} task.env.asymmetric_observations=True ;;
+  allegro_vn) sweep 1500 task=AllegroHand seed=${SEEDS:-1,2} +train.algorithm.normalize_value=True ;;
+  stack_vn) sweep 900 task=FrankaCubeStack seed=${SEEDS:-1,2} +train.algorithm.normalize_value=True ;;
+  stack) sweep 900 task=FrankaCubeStack seed=${SEEDS:-1,2} +train.algorithm.normalize_value=True \
            task.env.asymmetric_observations=False,True ;;
-  allegro) sweep 1500 task=AllegroHand seed=1,2 +train.algorithm.normalize_value=False,True ;;
-  rgb) sweep 1200 task=FrankaCubeLiftRGB,FrankaCubeLiftDepth seed=1,2 ;;
-  shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=1,2 ;;
-  balance) sweep 120 task=BallBalance seed=1,2,3,4 sweep_metric=timeout_fraction ;;
-  quad) sweep 120 task=Quadcopter seed=1,2,3,4 sweep_metric=timeout_fraction ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, allegro, rgb, shadow, balance or quad"; exit 2 ;;
+  allegro) sweep 1500 task=AllegroHand seed=${SEEDS:-1,2} +train.algorithm.normalize_value=False,True ;;
+  rgb) sweep 1200 task=FrankaCubeLiftRGB,FrankaCubeLiftDepth seed=${SEEDS:-1,2} ;;
+  shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=${SEEDS:-1,2} ;;
+  balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
+  quad) sweep 120 task=Quadcopter seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, allegro, allegro_vn, rgb, shadow, balance or quad"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
 touch "$out/done"
