@@ -19,8 +19,8 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
-from isaacgymenvs_mw.sim.cameras import CameraSpec, add_cameras
-from isaacgymenvs_mw.sim.names import compile_pattern, name_matches, no_match_error, one_body
+from isaacgymenvs_mw.sim.cameras import CameraSpec
+from isaacgymenvs_mw.sim.names import compile_pattern, name_matches, no_match_error
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
 from isaacgymenvs_mw.sim.sensors import ContactForces, Sensor
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
@@ -141,7 +141,8 @@ class ModelRequest:
     assets: Sequence[SceneAsset] = ()
     # {geom name regex: GeomContact}: contact properties of the selected geoms of the whole scene (env.contact).
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
-    # Cameras (env.cameras, sim/cameras.py), added on their bodies once the scene is composed.
+    # Cameras (env.cameras, sim/cameras.py): sensors refreshed by the render, added on their bodies once the scene
+    # is composed (all_sensors).
     cameras: Sequence[CameraSpec] = ()
     # Sensors the task YAML declares (env.sensors) and the task adds (sim/sensors.py), added once the scene is
     # composed; the contact forces of contact_bodies come after them (all_sensors).
@@ -158,9 +159,9 @@ class ModelRequest:
         return [b.name for b in spec.bodies]
 
     def all_sensors(self) -> tuple[Sensor, ...]:
-        """The sensors the model is built with, in column order: ``sensors``, then the contact forces of
-        ``contact_bodies``. ``Simulator(sensors=...)`` binds them."""
-        return (*self.sensors, *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
+        """The sensors the model is built with: the ``cameras``, then, in column order, ``sensors`` and the contact
+        forces of ``contact_bodies``. ``Simulator(sensors=...)`` binds them."""
+        return (*self.cameras, *self.sensors, *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "env.asset") -> mujoco.MjSpec:
@@ -322,7 +323,6 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         for geom in ground:
             geom.contype, geom.conaffinity = contype, conaffinity
     _set_geom_contacts(spec, request.geom_contacts)
-    add_cameras(spec, request.cameras, lambda pattern, key: one_body(spec, pattern, key))
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
             raise ConfigError(f"contact body '{body_name}' is not a body of {request.asset_file}")
