@@ -40,9 +40,9 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     match_joint_numbers,
     match_joint_values,
     movable_joint_names,
-    name_matches,
 )
 from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
+from isaacgymenvs_mw.sim.names import name_matches  # noqa: E402
 from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
 from isaacgymenvs_mw.sim.request import (  # noqa: E402
     SIM_KEYS,

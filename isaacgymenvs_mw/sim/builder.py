@@ -12,7 +12,6 @@ base; its ``pos``/``quat`` is the start pose unless the task gives one.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -20,7 +19,8 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
-from isaacgymenvs_mw.sim.cameras import CameraSpec, add_cameras
+from isaacgymenvs_mw.sim.cameras import CameraSpec
+from isaacgymenvs_mw.sim.names import compile_pattern, name_matches, no_match_error
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
 from isaacgymenvs_mw.sim.sensors import ContactForces, Sensor
 from isaacgymenvs_mw.sim.stability import warn_unstable_drives
@@ -141,7 +141,8 @@ class ModelRequest:
     assets: Sequence[SceneAsset] = ()
     # {geom name regex: GeomContact}: contact properties of the selected geoms of the whole scene (env.contact).
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
-    # Cameras (env.cameras, sim/cameras.py), added on their bodies once the scene is composed.
+    # Cameras (env.cameras, sim/cameras.py): sensors refreshed by the render, added on their bodies once the scene
+    # is composed (all_sensors).
     cameras: Sequence[CameraSpec] = ()
     # Sensors the task YAML declares (env.sensors) and the task adds (sim/sensors.py), added once the scene is
     # composed; the contact forces of contact_bodies come after them (all_sensors).
@@ -158,9 +159,9 @@ class ModelRequest:
         return [b.name for b in spec.bodies]
 
     def all_sensors(self) -> tuple[Sensor, ...]:
-        """The sensors the model is built with, in column order: ``sensors``, then the contact forces of
-        ``contact_bodies``. ``Simulator(sensors=...)`` binds them."""
-        return (*self.sensors, *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
+        """The sensors the model is built with: the ``cameras``, then, in column order, ``sensors`` and the contact
+        forces of ``contact_bodies``. ``Simulator(sensors=...)`` binds them."""
+        return (*self.cameras, *self.sensors, *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "env.asset") -> mujoco.MjSpec:
@@ -259,35 +260,6 @@ def match_joint_numbers(patterns: Mapping[str, object] | float | None, joint_nam
     return {name: float(value) for name, value in match_joint_values(table, joint_names, key, default).items()}
 
 
-def compile_pattern(pattern: object, key: str) -> re.Pattern:
-    """``pattern`` as a regular expression; an invalid one is an error naming ``key``."""
-    try:
-        return re.compile(str(pattern))
-    except re.error as err:
-        raise ConfigError(f"{key}: '{pattern}' is not a valid regular expression ({err})") from None
-
-
-def no_match_error(key: str, pattern: object, kind: str, names: Sequence[str], how: str = "") -> ConfigError:
-    """The one error of a pattern that selects nothing: the key, the pattern and the names it could have selected."""
-    singular = {"bodies": "body"}.get(kind, kind[:-1])
-    return ConfigError(f"{key}: '{pattern}' matches no {singular}{how} (a pattern must match the whole name); "
-                       f"{kind}: {list(names)}")
-
-
-def name_matches(pattern: str, names: Sequence[str], key: str, kind: str) -> list[int]:  # kind: "joints", ...
-    """Indices of the names that ``pattern``, a regular expression, matches as a whole (``re.fullmatch``).
-
-    The one rule of every YAML key that selects names (joints, bodies, geoms, actuators; docs/config.md, "Selecting
-    names"): ``"HAA"`` selects only a name ``HAA``, ``".*_HAA"`` every name ending in ``_HAA``. Selecting nothing is
-    an error naming ``key``, the pattern and the names.
-    """
-    regex = compile_pattern(pattern, key)
-    hits = [i for i, name in enumerate(names) if regex.fullmatch(name)]
-    if not hits:
-        raise no_match_error(key, pattern, kind, names)
-    return hits
-
-
 def build_model(request: ModelRequest) -> mujoco.MjModel:
     """Compile the task's model: asset + base + ground + actuators + scene assets + cameras + declared sensors +
     contact sensors + solver options."""
@@ -351,7 +323,6 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         for geom in ground:
             geom.contype, geom.conaffinity = contype, conaffinity
     _set_geom_contacts(spec, request.geom_contacts)
-    add_cameras(spec, request.cameras, lambda pattern, key: _one_body(spec, pattern, key))
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
             raise ConfigError(f"contact body '{body_name}' is not a body of {request.asset_file}")
@@ -410,16 +381,6 @@ def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dic
                     type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.5 * (x1 - x0) + 1e-4, 0.5 * (y1 - y0) + 1e-4, 0.5],
                     pos=[0.5 * (x0 + x1), 0.5 * (y0 + y1), -0.5])))
     return parts
-
-
-def _one_body(spec: mujoco.MjSpec, pattern: str, key: str) -> str:
-    """The one body of the composed scene whose whole name ``pattern`` matches (``name_matches``' rule)."""
-    names = [b.name for b in spec.bodies if b.name != spec.worldbody.name]
-    hits = name_matches(pattern, names, key, "bodies")
-    if len(hits) != 1:
-        raise ConfigError(f"{key}: '{pattern}' matches {len(hits)} bodies {[names[i] for i in hits]}; give a pattern "
-                          "that selects one")
-    return names[hits[0]]
 
 
 def _check_joint(spec: mujoco.MjSpec, name: str, key: str) -> None:

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar, Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -30,8 +30,13 @@ import torch
 import warp as wp
 
 import mujoco_warp as mjw
+from isaacgymenvs_mw.sim.names import one_body
+from isaacgymenvs_mw.sim.sensors import Sensor
 from isaacgymenvs_mw.utils.config import check_entry, real_number, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
+
+if TYPE_CHECKING:  # the simulator imports this module
+    from isaacgymenvs_mw.sim.simulator import Simulator
 
 OUTPUTS = ("rgb", "depth", "segmentation")
 CHANNELS = {"rgb": 3, "depth": 1, "segmentation": 1}
@@ -48,13 +53,16 @@ MEMORY_SHARE = 0.5
 
 
 @dataclass(frozen=True)
-class CameraSpec:
-    """One ``env.cameras.<name>`` entry, checked.
+class CameraSpec(Sensor):
+    """One ``env.cameras.<name>`` entry, checked: a ``Sensor`` with one view per output, refreshed by the simulator's
+    render (``refresh``; the module docstring says what a render does).
 
     ``body``: the body the camera is attached to (a pattern that must select exactly one body of the scene; checked
     when the model is built), None for a camera fixed in the world. ``pos`` and ``quat`` (w, x, y, z) place it in
     that body's frame (the world frame when fixed). ``fovy``: vertical field of view in degrees.
     """
+
+    refresh: ClassVar[str] = "render"
 
     name: str
     body: str | None
@@ -63,12 +71,23 @@ class CameraSpec:
     fovy: float
     width: int
     height: int
-    outputs: tuple[str, ...]
+    outputs: tuple[str, ...] = field()  # required: field() hides the default of Sensor.outputs
     depth_far: float
 
     @property
     def key(self) -> str:
         return f"env.cameras.{self.name}"
+
+    def add_to(self, spec: mujoco.MjSpec) -> None:
+        """Add the camera on its body (the one body its pattern selects in the composed scene) or the world body."""
+        parent = spec.worldbody if self.body is None else spec.body(one_body(spec, self.body, f"{self.key}.body"))
+        parent.add_camera(name=self.name, pos=list(self.pos), quat=list(self.quat), fovy=float(self.fovy),
+                          resolution=[self.width, self.height])
+
+    def bind(self, sim: Simulator) -> dict[str, torch.Tensor]:
+        """{output: (N, C, H, W) image}: the views the simulator's render context writes (``sim.camera(name)``)."""
+        view = sim.camera(self.name)
+        return {output: view.image(output) for output in self.outputs}
 
 
 def camera_specs(cfg: Mapping | None) -> tuple[CameraSpec, ...]:
@@ -131,15 +150,6 @@ def look_at_quat(pos: Sequence[float], target: Sequence[float], key: str = "look
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.stack([x, y, z], axis=1).ravel())
     return tuple(float(v) for v in quat)
-
-
-def add_cameras(spec: mujoco.MjSpec, cameras: Sequence[CameraSpec], body_index: Callable[[str, str], str]) -> None:
-    """Add each camera to the model being built, on its body (``body_index(pattern, key)`` resolves the pattern to
-    one body name; the builder's name rule) or the world body."""
-    for cam in cameras:
-        parent = spec.worldbody if cam.body is None else spec.body(body_index(cam.body, f"{cam.key}.body"))
-        parent.add_camera(name=cam.name, pos=list(cam.pos), quat=list(cam.quat), fovy=float(cam.fovy),
-                          resolution=[cam.width, cam.height])
 
 
 @wp.kernel

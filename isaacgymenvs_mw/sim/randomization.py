@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 import torch
 
-from isaacgymenvs_mw.sim.builder import name_matches
+from isaacgymenvs_mw.sim.names import name_matches
 from isaacgymenvs_mw.sim.simulator import Simulator
 from isaacgymenvs_mw.utils.errors import ConfigError
 

@@ -10,7 +10,7 @@ fixtures, IsaacGymEnvs' actors), each attached to the main model under its own n
 ``prefix`` says otherwise); see ``sim/scene.py`` for the views the built Simulator gives each of them.
 
 Names in YAML mappings (``driveMode``, ``stiffness``, ``contactBodies``, ...) are regular expressions that must
-match the whole name: one rule, ``name_matches`` in ``sim/builder.py`` (used by ``match_joint_values`` and
+match the whole name: one rule, ``name_matches`` in ``sim/names.py`` (used by ``match_joint_values`` and
 ``match_body_names``), documented in docs/config.md below the ``env.asset`` table.
 """
 

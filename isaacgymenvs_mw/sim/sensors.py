@@ -1,23 +1,27 @@
 """Sensors: one interface (``Sensor``) for everything a task senses, each a named torch view ``(num_envs, ...)``
-with no host copy (``Simulator.sensor(name)``).
+with no host copy (``Simulator.sensor(name)``; a camera has one view per output, ``Simulator.sensor(name,
+output="rgb")``).
 
-A sensor is declared before the model is built (``ModelRequest.sensors``, or ``env.sensors`` in the task YAML) and
-adds what it needs to the model spec there (``Sensor.add_to``); once the model is compiled the simulator binds it
-(``Sensor.bind``: its view) and refreshes it in the step's one sense phase:
+A sensor is declared before the model is built (``ModelRequest.sensors``, or ``env.sensors`` and ``env.cameras`` in
+the task YAML; ``ModelRequest.all_sensors()`` lists them all) and adds what it needs to the model spec there
+(``Sensor.add_to``); once the model is compiled the simulator binds it (``Sensor.bind``: its views, listed in
+``Simulator.sensors``) and refreshes it in the phase of the step its ``refresh`` names:
   * MuJoCo sensors (an asset's MJCF ``<sensor>`` section, ``env.sensors`` entries, the net contact forces of
     ``ContactForces``) are columns of the batched ``sensordata``, which each physics step rewrites; they have nothing
     to do in ``sense()``. MuJoCo computes them from the state at the start of that step (its forward pass runs before
     the integration), so after ``Simulator.simulate()`` a view holds the values of the last physics step's start
     state, like ``xpos`` and ``cvel``; ``Simulator.forward()`` recomputes them from the current state. A world reset
     by ``Simulator.reset_worlds`` reads zeros until its next physics step.
-  * Computed sensors (``HeightScan``) are torch work on the device: ``Simulator.sense()`` refreshes them from the
-    current state. VecTask calls it once per step, after the resets and before the observation is computed (inside
-    the captured step on CUDA), and before the observation of ``reset()``.
-Cameras (sim/cameras.py) are not a ``Sensor``: their refresh is a render, Warp launches replayed as a Warp graph,
-which cannot run inside the compiled torch function that holds the sense phase (it sits between the resets and the
-flat observation, both in ``post_physics_step``); VecTask renders them after that function, in the step's render
-phase (tasks/base/step_execution.py). They can join once the flat observation is computed after the sense phase,
-outside that function.
+  * Computed sensors (``HeightScan``), ``refresh = "sense"``, are torch work on the device: ``Simulator.sense()``
+    refreshes them from the current state. VecTask calls it once per step, after the resets and before the
+    observation is computed (inside the captured step on CUDA), and before the observation of ``reset()``.
+  * Cameras (``CameraSpec``, sim/cameras.py), ``refresh = "render"``, are refreshed by a render:
+    ``Simulator.render_cameras()`` draws every camera of every world at once (one render context, Warp launches
+    replayed as one Warp graph). That cannot run in ``sense()``: the sense phase sits inside the torch function that
+    VecTask compiles and captures (between the resets and the flat observation, both in ``post_physics_step``), and a
+    Warp launch there would break the compiled graph. So VecTask renders them after that function, in the step's
+    render phase (tasks/base/step_execution.py), and after the resets of ``reset()``, every ``env.renderInterval``
+    steps; the image observation reads them after it.
 
 ``env.sensors.<name>: {type: ..., site: ...}`` declares a MuJoCo sensor that the asset does not have. Its type is one
 MuJoCo sensor, or ``imu``: an accelerometer and a gyro on one site, MuJoCo sensors ``<name>_accelerometer`` and
@@ -35,7 +39,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING, ClassVar, Mapping, Sequence
 
 import mujoco
 import torch
@@ -70,28 +74,40 @@ BODY_TYPES = ("framepos", "framequat", "framelinvel", "frameangvel")
 SENSOR_KEYS = ("type", "site", "body")
 # Custom text elements naming a sensor group (after this prefix) and its MuJoCo sensors (the text, space separated).
 GROUP_TEXT_PREFIX = "sensor_group:"
+# The phases of a step that refresh sensors (``Sensor.refresh``), in their order: the sense phase inside the step's
+# torch function, then the render after it.
+REFRESH_PHASES = ("sense", "render")
 
 
 class Sensor(ABC):
-    """One sensor of the simulator, seen by tasks as the view ``Simulator.sensor(name)``.
+    """One sensor of the simulator, seen by tasks as the view ``Simulator.sensor(name)``, or, for a sensor with
+    several outputs (a camera's ``rgb``, ``depth``, ...), one view per output: ``Simulator.sensor(name,
+    output=...)``.
 
-    Subclasses set ``name`` (unique among the model's sensors) and implement ``bind``; a MuJoCo sensor also adds
-    itself to the model spec (``add_to``), a computed one refreshes its view in ``sense``."""
+    Subclasses set ``name`` (unique among the model's sensors) and implement ``bind``; a MuJoCo sensor or a camera
+    also adds itself to the model spec (``add_to``). ``refresh`` says which phase of the step refreshes the views
+    (``REFRESH_PHASES``): "sense", device torch work (``sense``, which a computed sensor implements); "render", the
+    simulator's one batch render of its cameras (``Simulator.render_cameras``), Warp launches replayed as a graph of
+    their own."""
 
     name: str
+    refresh: ClassVar[str] = "sense"
+    # The names of its views when it has several (bind returns {output: view}); () when it has one.
+    outputs: tuple[str, ...] = ()
 
     def add_to(self, spec: mujoco.MjSpec) -> None:
-        """Add what the sensor needs to the model being built (MuJoCo sensors, sites). Computed sensors add
+        """Add what the sensor needs to the model being built (MuJoCo sensors, sites, cameras). Computed sensors add
         nothing."""
 
     @abstractmethod
-    def bind(self, sim: Simulator) -> torch.Tensor:
-        """Its (num_worlds, ...) view on ``sim``'s device, made once after the model is compiled. Always the same
-        tensor, refreshed in place: a captured step holds its address."""
+    def bind(self, sim: Simulator) -> torch.Tensor | Mapping[str, torch.Tensor]:
+        """Its (num_worlds, ...) view on ``sim``'s device ({output: view} for each of ``outputs``), made once after
+        the model is compiled. Always the same tensors, refreshed in place: a captured step holds their addresses."""
 
     def sense(self) -> None:
         """Refresh the view from the simulator's current state: device torch work only, no host sync (it runs in
-        the captured step on CUDA). MuJoCo sensors have nothing to do: each physics step rewrites ``sensordata``."""
+        the captured step on CUDA). MuJoCo sensors have nothing to do: each physics step rewrites ``sensordata``;
+        nor have rendered ones: the render rewrites their images."""
 
 
 @dataclass(frozen=True)
@@ -227,11 +243,11 @@ class HeightScan(Sensor):
 class SensorViews:
     """Every named sensor of a compiled model as a basic slice of ``sensordata`` ((num_worlds, nsensordata) torch
     view of the Warp array): reading one costs no copy, and the physics refreshes it in place. The views of bound
-    ``Sensor``s (``add``) are looked up by name beside them."""
+    ``Sensor``s (``add``) are looked up by name beside them, a sensor of several outputs by name and output."""
 
     def __init__(self, m: mujoco.MjModel, sensordata: torch.Tensor) -> None:
         self._data = sensordata
-        self._bound: dict[str, torch.Tensor] = {}
+        self._bound: dict[str, torch.Tensor | Mapping[str, torch.Tensor]] = {}
         self.columns: dict[str, slice] = {}
         for s in range(m.nsensor):
             name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SENSOR, s)
@@ -246,14 +262,28 @@ class SensorViews:
     def names(self) -> list[str]:
         return list(dict.fromkeys([*self.columns, *self._bound]))
 
-    def add(self, name: str, view: torch.Tensor) -> None:
-        """Look ``name`` up as ``view`` (a bound ``Sensor``'s) from now on."""
-        self._bound[name] = view
+    def add(self, sensor: Sensor, views: torch.Tensor | Mapping[str, torch.Tensor]) -> None:
+        """Look ``sensor`` up by its name as ``views`` (what its ``bind`` returned) from now on."""
+        if sensor.outputs and (not isinstance(views, Mapping) or tuple(views) != tuple(sensor.outputs)):
+            raise TypeError(f"{type(sensor).__name__}.bind must return {{output: view}} for {list(sensor.outputs)}")
+        self._bound[sensor.name] = dict(views) if sensor.outputs else views
 
-    def view(self, name: str, key: str) -> torch.Tensor:
-        """(num_worlds, ...) view of sensor ``name``; ``key``: where the user named it (the error names it)."""
-        if name in self._bound:
-            return self._bound[name]
-        if name not in self.columns:
-            raise ConfigError(f"{key}: {name!r} is not a sensor of the model; its sensors: {self.names}")
-        return self._data[:, self.columns[name]]
+    def outputs(self, name: str) -> tuple[str, ...]:
+        """The outputs of sensor ``name`` (a camera's ``rgb``, ``depth``, ``segmentation``); () for one view."""
+        views = self._bound.get(name)
+        return tuple(views) if isinstance(views, dict) else ()
+
+    def view(self, name: str, key: str, output: str | None = None) -> torch.Tensor:
+        """(num_worlds, ...) view of sensor ``name`` (of its ``output``, for a sensor of several); ``key``: where the
+        user named it (the error names it)."""
+        views = self._bound.get(name)
+        if views is None:
+            if name not in self.columns:
+                raise ConfigError(f"{key}: {name!r} is not a sensor of the model; its sensors: {self.names}")
+            views = self._data[:, self.columns[name]]
+        outputs = list(views) if isinstance(views, dict) else []
+        if outputs and output not in outputs:
+            raise ConfigError(f"{key}: sensor {name!r} has the outputs {outputs}; give one (output={output!r})")
+        if not outputs and output is not None:
+            raise ConfigError(f"{key}: sensor {name!r} has one view, no output {output!r}")
+        return views[output] if outputs else views

@@ -23,7 +23,7 @@ from isaacgymenvs_mw.sim.cameras import CameraSpec, Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import KernelLoad, init_warp
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
-from isaacgymenvs_mw.sim.sensors import Sensor, SensorViews
+from isaacgymenvs_mw.sim.sensors import REFRESH_PHASES, Sensor, SensorViews
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
 
@@ -79,14 +79,15 @@ class Simulator:
             sums in a fixed order. With mujoco-warp 4.0.0 that is not enough for identical GPU runs (its contact and
             constraint sorts are not implemented; docs/config.md, "Deterministic mode"). Costs speed on GPU (12x for
             Go1); the CPU device runs kernels serially and reproduces runs either way.
-        cameras: the model's cameras to render (``env.cameras``, already added to ``mj_model`` by ``build_model``);
-            their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
+        cameras: camera sensors given apart from ``sensors`` (bound the same way; for a model built with cameras
+            only): their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
         torque_speed: {joint: (saturation torque, torque limit, no-load speed)} (``ModelRequest.torque_speed``): the
             drives of these joints follow a DC motor's torque-speed curve (``sim/actuators.py``) at every physics
             step; ``self.torque_speed`` then holds the per-world parameter views, which randomisation may rewrite.
-        sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``): each is bound to its view
-            (``sensor(name)``), and the computed ones are refreshed by ``sense()``. The model's MuJoCo sensors are
-            views by name without it.
+        sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``, ``env.cameras`` included):
+            each is bound to its views (``sensor(name)``) and refreshed in its phase (``Sensor.refresh``): the computed
+            ones by ``sense()``, the cameras by ``render_cameras()`` (one render for all). The model's MuJoCo sensors
+            are views by name without it.
     """
 
     def __init__(
@@ -145,12 +146,22 @@ class Simulator:
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
-        self.cameras: Cameras | None = None
-        if cameras:
-            self.cameras = Cameras(mj_model, self.model, self.data, cameras, self.num_worlds, self.wp_device)
+        sensors = (*cameras, *sensors)
+        names = [s.name for s in sensors]
         for sensor in sensors:
-            self.sensors.add(sensor.name, sensor.bind(self))
-        self._computed_sensors = [s for s in sensors if type(s).sense is not Sensor.sense]
+            if names.count(sensor.name) > 1:
+                raise ConfigError(f"two sensors of the model are named {sensor.name!r} (sensors and cameras share one "
+                                  "namespace); give one another name")
+            if sensor.refresh not in REFRESH_PHASES:
+                raise ValueError(f"sensor {sensor.name!r}: refresh={sensor.refresh!r}; give one of {REFRESH_PHASES}")
+        # The render phase: one render context draws every rendered sensor (a camera of the model) at once.
+        rendered = [s for s in sensors if s.refresh == "render"]
+        self.cameras: Cameras | None = None
+        if rendered:
+            self.cameras = Cameras(mj_model, self.model, self.data, rendered, self.num_worlds, self.wp_device)
+        for sensor in sensors:
+            self.sensors.add(sensor, sensor.bind(self))
+        self._computed_sensors = [s for s in sensors if s.refresh == "sense" and type(s).sense is not Sensor.sense]
         # The kernels start compiling now, in the background (the render context above launched its own first): a
         # cold start compiles while the task builds the rest of itself, not after it.
         self._kernel_load = self._start_kernel_load()
@@ -305,13 +316,14 @@ class Simulator:
         return TorqueSpeedLimit(m, self.model, self.data, self.num_worlds, self.device,
                                 params[:, 0], params[:, 1], params[:, 2])
 
-    def sensor(self, name: str, key: str = "sensor") -> torch.Tensor:
+    def sensor(self, name: str, key: str = "sensor", output: str | None = None) -> torch.Tensor:
         """(num_worlds, ...) torch view of the sensor ``name``: a MuJoCo sensor of the model (an MJCF ``<sensor>``
         or an ``env.sensors`` entry: a slice of ``sensordata``, rewritten in place by each physics step) or a bound
-        ``Sensor``'s (``contact_forces``, a slice too; ``height_scan``, refreshed by ``sense()``); no copy
-        (sim/sensors.py says which state each describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for
-        the error when there is none of that name."""
-        return self.sensors.view(name, key)
+        ``Sensor``'s (``contact_forces``, a slice too; ``height_scan``, refreshed by ``sense()``; an ``env.cameras``
+        image, ``output`` one of its outputs, refreshed by ``render_cameras()``); no copy (sim/sensors.py says which
+        state each describes). Look it up once and keep it. ``key``: the YAML key that named the sensor, for the
+        error when there is none of that name (``sensors.outputs(name)`` lists a sensor's outputs)."""
+        return self.sensors.view(name, key, output)
 
     def sense(self) -> None:
         """The step's sense phase: refresh every computed sensor from the current state (device torch work, no host
@@ -400,8 +412,9 @@ class Simulator:
         return views[name]
 
     def render_cameras(self) -> None:
-        """Draw every camera of every world from the current ``qpos`` (poses, BVH refit, render, unpack: one graph
-        replay on CUDA); the ``camera(name)`` views then hold the new images."""
+        """The render phase: draw every camera of every world (the sensors refreshed by the render) from the current
+        ``qpos`` (poses, BVH refit, render, unpack: one graph replay on CUDA); their views then hold the new
+        images."""
         if self.cameras is not None:
             self._run("render", self.cameras.launch)
             self.cameras.renders += 1

@@ -8,8 +8,8 @@ were what a step cost beyond the physics. So, on CUDA:
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
 Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
 VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics
-(whose sequence refreshes the computed sensors, ``Simulator.sense()``), render (the cameras, after the step's resets,
-with Warp graphs of their own), and, when the task observes camera images, the image observation (torch), so that
+(whose sequence refreshes the computed sensors, ``Simulator.sense()``), render (the sensors a render refreshes, the
+cameras: ``Simulator.render_cameras()``, after the step's resets, with Warp graphs of their own), and, when the task observes camera images, the image observation (torch), so that
 images show the state after the resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
 (``ImageStack``), so it is captured twice, once per buffer, and each step replays the one for its parity.
 
