@@ -377,3 +377,29 @@ def test_a_task_with_equality_constraints_compiles_its_step_once():
         with torch._dynamo.config.patch(error_on_recompile=i > 1):
             obs, rew, _, _ = task.step(torch.zeros(2, task.num_actions))
     assert bool(torch.isfinite(obs["obs"]).all()) and bool(torch.isfinite(rew).all())
+
+
+def test_a_reset_that_refreshes_the_poses_compiles_into_the_one_graph_and_observes_the_new_poses():
+    # FrankaCubeLift's reset recomputes the poses (Warp's kinematics, an op of the compiled graph) and observes the
+    # grasp site: the compiled step must order the op after the reset's writes and before the observation.
+    tasks = [isaacgymenvs_mw.make("FrankaCubeLift", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True,
+                                  seed=0, overrides=[f"+task.sim.compileStep={on}"]) for on in (True, False)]
+    for task in tasks:
+        torch.manual_seed(3)
+        task.reset()
+    tasks[1].sim.load_state(tasks[0].sim.save_state())
+    generator = torch.Generator().manual_seed(1)
+    for i in range(4):
+        a = 2.0 * torch.rand(2, tasks[0].num_actions, generator=generator) - 1.0
+        outputs = []
+        for task in tasks:
+            if i == 2:
+                task.progress_buf[0] = task.max_episode_length - 1
+            torch.manual_seed(100 + i)
+            obs, rew, done, _ = task.step(a)
+            outputs.append((obs["obs"].clone(), rew.clone(), done.clone()))
+        (o1, r1, d1), (o2, r2, d2) = outputs
+        torch.testing.assert_close(o1, o2, atol=1e-5, rtol=1e-5, msg=f"observations differ at step {i}")
+        torch.testing.assert_close(r1, r2, atol=1e-6, rtol=1e-5, msg=f"rewards differ at step {i}")
+        assert torch.equal(d1, d2) and bool(d1[0]) == (i == 2), f"resets differ at step {i}"
+    assert tasks[0].execution.compiled_at == "alongside Warp's kernels" and tasks[0].execution._step.compiles == 1

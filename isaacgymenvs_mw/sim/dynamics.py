@@ -13,7 +13,6 @@ from typing import Sequence
 import mujoco
 import numpy as np
 import torch
-import warp as wp
 
 
 class SiteDynamics:
@@ -45,9 +44,9 @@ class SiteDynamics:
         lower = torch.tensor(rows, dtype=torch.long) * k + torch.tensor(cols, dtype=torch.long)
         upper = torch.tensor(cols, dtype=torch.long) * k + torch.tensor(rows, dtype=torch.long)
         self._lower, self._upper = lower.to(dev), upper.to(dev)
-        self._M = wp.to_torch(sim.data.M)  # (N, nC)
-        self._xanchor = wp.to_torch(sim.data.xanchor)  # (N, njnt, 3)
-        self._xaxis = wp.to_torch(sim.data.xaxis)
+        self._M = sim.torch_view(sim.data.M)  # (N, nC)
+        self._xanchor = sim.torch_view(sim.data.xanchor)  # (N, njnt, 3)
+        self._xaxis = sim.torch_view(sim.data.xaxis)
         self._site_xpos = sim.site_xpos
 
         joints = [int(m.dof_jntid[d]) for d in self.dofs]

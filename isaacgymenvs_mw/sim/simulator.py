@@ -8,7 +8,9 @@ write from torch must be in place (``view[:] = ...``, ``copy_``), never a rebind
 
 from __future__ import annotations
 
+import itertools
 import warnings
+import weakref
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
@@ -49,6 +51,30 @@ _OVERFLOW_KEYS = {
     # More heightfield prisms touch one geom than MuJoCo keeps per pair: a coarser terrain grid has fewer.
     int(mjw.OverflowType.HFIELD): "env.terrain.horizontalScale",
 }
+
+
+# A kinematics refresh inside the compiled post-physics step (a reset that writes qpos and then observes body or site
+# poses): torch.compile cannot trace Warp's launches, so there the refresh is an op of the graph (``_kinematics_op``)
+# that names what MuJoCo Warp's ``kinematics`` reads and writes, for torch to keep it in order with the torch work
+# around it. Data fields it reads, Model fields it reads that torch may write (the randomiser's), Data fields it writes:
+_KINEMATICS_READS = ("qpos", "mocap_pos", "mocap_quat")
+_KINEMATICS_MODEL_READS = ("qpos0", "body_pos", "body_quat", "body_ipos", "body_iquat", "jnt_pos", "jnt_axis",
+                           "geom_pos", "geom_quat", "site_pos", "site_quat")
+_KINEMATICS_WRITES = ("xpos", "xquat", "xanchor", "xaxis", "xmat", "xipos", "ximat", "geom_xpos", "geom_xmat",
+                      "site_xpos", "site_xmat")
+# The op's int argument names its simulator.
+_SIMULATORS: weakref.WeakValueDictionary[int, Simulator] = weakref.WeakValueDictionary()
+_SIMULATOR_IDS = itertools.count()
+
+
+@torch.library.custom_op("isaacgymenvs_mw::kinematics", mutates_args=("poses",))
+def _kinematics_op(sim: int, state: list[torch.Tensor], poses: list[torch.Tensor]) -> None:
+    _SIMULATORS[sim]._kinematics_on(state, poses)
+
+
+@_kinematics_op.register_fake
+def _(sim: int, state: list[torch.Tensor], poses: list[torch.Tensor]) -> None:
+    return None
 
 
 @dataclass
@@ -139,7 +165,10 @@ class Simulator:
         self._kernels_recorded: bool | None = None  # None: not loaded yet
         self._kernel_load: KernelLoad | None = None
 
+        self._torch_views: dict[int, tuple[wp.array, torch.Tensor]] = {}  # torch_view's
         self._bind_views()
+        self._id = next(_SIMULATOR_IDS)
+        _SIMULATORS[self._id] = self
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self._graphs: dict[str, object] = {}
         self.torque_speed: TorqueSpeedLimit | None = self._torque_speed_limit(torque_speed) if torque_speed else None
@@ -194,44 +223,47 @@ class Simulator:
     # ------------------------------------------------------------------ views
     def _bind_views(self) -> None:
         d, m = self.data, self.mj_model
-        self.qpos = wp.to_torch(d.qpos)
-        self.qvel = wp.to_torch(d.qvel)
-        self.ctrl = wp.to_torch(d.ctrl)
-        self.qacc = wp.to_torch(d.qacc)
-        self.qfrc_actuator = wp.to_torch(d.qfrc_actuator)
-        self.actuator_force = wp.to_torch(d.actuator_force)  # per actuator, after its force range
-        self.xpos = wp.to_torch(d.xpos)
-        self.xquat = wp.to_torch(d.xquat)
-        self.xipos = wp.to_torch(d.xipos)  # centres of mass, world frame
-        self.xmat = wp.to_torch(d.xmat)  # (N, nbody, 3, 3) body orientations: columns are the body axes in world
-        self.site_xpos = wp.to_torch(d.site_xpos)  # (N, nsite, 3) site positions, world frame
-        self.site_xmat = wp.to_torch(d.site_xmat)  # (N, nsite, 3, 3) site orientations
+        self.qpos = self.torch_view(d.qpos)
+        self.qvel = self.torch_view(d.qvel)
+        self.ctrl = self.torch_view(d.ctrl)
+        self.qacc = self.torch_view(d.qacc)
+        self.qfrc_actuator = self.torch_view(d.qfrc_actuator)
+        self.actuator_force = self.torch_view(d.actuator_force)  # per actuator, after its force range
+        self.xpos = self.torch_view(d.xpos)
+        self.xquat = self.torch_view(d.xquat)
+        self.xipos = self.torch_view(d.xipos)  # centres of mass, world frame
+        self.xmat = self.torch_view(d.xmat)  # (N, nbody, 3, 3) body orientations: columns are the body axes, world
+        self.site_xpos = self.torch_view(d.site_xpos)  # (N, nsite, 3) site positions, world frame
+        self.site_xmat = self.torch_view(d.site_xmat)  # (N, nsite, 3, 3) site orientations
         # (N, nmocap, 3) / (N, nmocap, 4) poses of the mocap bodies (world frame, (w, x, y, z)): bodies a task moves
         # by writing them (a goal marker), not the physics; the next step's kinematics reads them.
-        self.mocap_pos = wp.to_torch(d.mocap_pos)
-        self.mocap_quat = wp.to_torch(d.mocap_quat)
+        self.mocap_pos = self.torch_view(d.mocap_pos)
+        self.mocap_quat = self.torch_view(d.mocap_quat)
         # Body velocities as MuJoCo keeps them: (angular, linear) in world axes, about the subtree centre of mass of
         # the body's root (see body_lin_vel).
-        self.cvel = wp.to_torch(d.cvel)
-        self.subtree_com = wp.to_torch(d.subtree_com)
+        self.cvel = self.torch_view(d.cvel)
+        self.subtree_com = self.torch_view(d.subtree_com)
         self._body_rootid = torch.tensor(m.body_rootid, device=self.device, dtype=torch.long)
-        self.sensordata = wp.to_torch(d.sensordata)
+        self.sensordata = self.torch_view(d.sensordata)
         self.sensors = SensorViews(m, self.sensordata)  # named slices of sensordata: self.sensor(name)
-        self.xfrc_applied = wp.to_torch(d.xfrc_applied)
-        self.overflow = wp.to_torch(d.overflow)
-        self._qpos0 = wp.to_torch(self.model.qpos0)
+        self.xfrc_applied = self.torch_view(d.xfrc_applied)
+        self.overflow = self.torch_view(d.overflow)
+        self._qpos0 = self.torch_view(self.model.qpos0)
+        self._kinematics_state = tuple(self.torch_view(getattr(d, f)) for f in _KINEMATICS_READS) + tuple(
+            self.model_field(f) for f in _KINEMATICS_MODEL_READS)
+        self._kinematics_poses = tuple(self.torch_view(getattr(d, f)) for f in _KINEMATICS_WRITES)
         # Equality-constraint rows of the last step's constraint set (MuJoCo Warp keeps them per world, computed at
         # the start of the step from its state): read by equality_violation, only in models that have any.
         self._efc = None
         if m.neq:
-            efc_type = wp.to_torch(d.efc.type)
-            self._efc = (efc_type, wp.to_torch(d.efc.id), wp.to_torch(d.efc.pos), wp.to_torch(d.nefc),
-                         torch.arange(efc_type.shape[1], device=self.device))
+            efc_type = self.torch_view(d.efc.type)
+            self._efc = (efc_type, self.torch_view(d.efc.id), self.torch_view(d.efc.pos),
+                         self.torch_view(d.nefc), torch.arange(efc_type.shape[1], device=self.device))
         # What one physics step hands to the next; everything else (poses, contacts, sensors) is recomputed.
         self._carried_state = {
-            "qpos": self.qpos, "qvel": self.qvel, "ctrl": self.ctrl, "act": wp.to_torch(d.act),
-            "qacc_warmstart": wp.to_torch(d.qacc_warmstart), "time": wp.to_torch(d.time),
-            "xfrc_applied": self.xfrc_applied, "qfrc_applied": wp.to_torch(d.qfrc_applied),
+            "qpos": self.qpos, "qvel": self.qvel, "ctrl": self.ctrl, "act": self.torch_view(d.act),
+            "qacc_warmstart": self.torch_view(d.qacc_warmstart), "time": self.torch_view(d.time),
+            "xfrc_applied": self.xfrc_applied, "qfrc_applied": self.torch_view(d.qfrc_applied),
         }
         # A reset zeroes all carried state but the positions (set to qpos0), and the sensors and overflow bits.
         self._zeroed_on_reset = [view for name, view in self._carried_state.items() if name != "qpos"]
@@ -301,11 +333,20 @@ class Simulator:
     def dt(self) -> float:
         return float(self.mj_model.opt.timestep)
 
+    def torch_view(self, array: wp.array) -> torch.Tensor:
+        """The torch tensor of one of the simulator's Warp arrays, the same object at every call. torch.compile
+        knows two tensors share memory only by their storage, and ``wp.to_torch`` makes a new storage per call: a
+        compiled step that wrote through one view and read through another could order the two wrongly."""
+        kept = self._torch_views.get(id(array))
+        if kept is None:  # the array is kept beside its view: its id names no other array while the entry exists
+            kept = self._torch_views[id(array)] = (array, wp.to_torch(array))
+        return kept[1]
+
     def model_field(self, name: str) -> torch.Tensor:
         """Torch view of a Model array (per-world fields have num_worlds rows); "opt.gravity" for gravity."""
         if name.startswith("opt."):
-            return wp.to_torch(getattr(self.model.opt, name[len("opt."):]))
-        return wp.to_torch(getattr(self.model, name))
+            return self.torch_view(getattr(self.model.opt, name[len("opt."):]))
+        return self.torch_view(getattr(self.model, name))
 
     def _torque_speed_limit(self, limits: Mapping[str, tuple[float, float, float]]) -> TorqueSpeedLimit:
         """The DC-motor limit of each actuator's joint (``inf``: none); the model compiles the limited actuators
@@ -421,7 +462,23 @@ class Simulator:
 
     def refresh_kinematics(self) -> None:
         """Recompute body poses (xpos, xquat, ...) after writing qpos, without collisions or dynamics."""
+        if torch.compiler.is_compiling():  # traced into the compiled step as one op, not a graph break
+            _kinematics_op(self._id, list(self._kinematics_state), list(self._kinematics_poses))
+        else:
+            self._run("kinematics", lambda: mjw.kinematics(self.model, self.data))
+
+    def _kinematics_on(self, state: list[torch.Tensor], poses: list[torch.Tensor]) -> None:
+        """The refresh as the compiled step's op runs it: from the values ``state`` into ``poses``. Compiled code may
+        hand over a tensor of its own in place of the simulator's (a value it writes back later, or not at all):
+        the refresh then reads or fills that one, and the simulator's is left as it was."""
+        pairs = [*zip(self._kinematics_state, state), *zip(self._kinematics_poses, poses)]
+        moved = [(mine, given, mine.clone()) for mine, given in pairs if given.data_ptr() != mine.data_ptr()]
+        for mine, given, _ in moved:
+            mine.copy_(given)
         self._run("kinematics", lambda: mjw.kinematics(self.model, self.data))
+        for mine, given, kept in moved:
+            given.copy_(mine)  # the poses computed (the state read is unchanged)
+            mine.copy_(kept)
 
     def reset_worlds(self, mask: torch.Tensor) -> None:
         """Return the masked worlds to the model's initial state (qpos0, zero velocity, no controls or forces).

@@ -67,6 +67,9 @@ class Quadcopter(VecTask):
         self.target = torch.tensor(TARGET, device=dev)
         self.initial_root_pos = self.sim.root_pos[0].clone()
         self.initial_root_quat = self.sim.root_quat[0].clone()
+        # Zero thrusts now: the simulator's force buffer exists before the step is compiled, so the compiled step
+        # does not meet a new model at the first step and compile again.
+        self.apply_body_forces(self.forces, bodies=self.rotor_bodies, frame="body")
         self.build_observation_layouts()
 
     def check_action_size(self) -> None:
