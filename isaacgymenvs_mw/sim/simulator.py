@@ -400,7 +400,8 @@ class Simulator:
             # torch is capturing the step (a reset's kinematics refresh in the captured post-physics step): the
             # launches go to torch's capturing stream and become part of its graph. On Warp's own stream they
             # would run once, now, and never when torch replays the step.
-            with wp.ScopedDevice(self.wp_device), wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream())):
+            with wp.ScopedDevice(self.wp_device), wp.ScopedStream(
+                    wp.stream_from_torch(torch.cuda.current_stream()), sync_enter=False, sync_exit=False):
                 fn()
             return
         if not self.use_graphs:
