@@ -23,6 +23,7 @@ import warp as wp
 
 import isaacgymenvs_mw
 from isaacgymenvs_mw.sim import kernels
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME
 from isaacgymenvs_mw.tasks.base.step_execution import _CompiledStep
 
 N = 4
@@ -403,3 +404,31 @@ def test_a_reset_that_refreshes_the_poses_compiles_into_the_one_graph_and_observ
         torch.testing.assert_close(r1, r2, atol=1e-6, rtol=1e-5, msg=f"rewards differ at step {i}")
         assert torch.equal(d1, d2) and bool(d1[0]) == (i == 2), f"resets differ at step {i}"
     assert tasks[0].execution.compiled_at == "alongside Warp's kernels" and tasks[0].execution._step.compiles == 1
+
+
+def test_a_replayed_step_reports_the_metric_tensors_its_capture_recorded():
+    """A captured step's replays run no Python, so nothing records; the task's metrics must still be the tensors
+    the step recorded while it was captured (the graphs rewrite them in place). CUDA graphs need a GPU: here the
+    capture is the step's Python run once and a replay runs none of it."""
+    task = isaacgymenvs_mw.make("FrankaCubeLift", num_envs=N, sim_device="cpu", rl_device="cpu", headless=True)
+    task.reset()
+    real_run = task.execution.run
+
+    def run(actions):
+        if task.execution.graphs is None:  # the capture
+            real_run(actions)
+            task.execution.graphs = ("before", "after")
+        # a replay: the graphs would rewrite the recorded tensors; no Python of the step runs
+
+    task.execution.run = run
+    actions = torch.zeros(N, task.num_actions)
+    task.step(actions)
+    captured = {kind: task.metrics.recorded(kind) for kind in (EPISODE_SUM, OUTCOME)}
+    assert set(captured[EPISODE_SUM]) == {"success"} and set(captured[OUTCOME]) == {"success"}
+    task.reset()  # an eager reset between replays records its own values
+    for _ in range(2):
+        task.step(actions)
+        for kind, values in captured.items():
+            replayed = task.metrics.recorded(kind)
+            assert replayed.keys() == values.keys()
+            assert all(replayed[name] is values[name] for name in values)

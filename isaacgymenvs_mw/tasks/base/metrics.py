@@ -54,6 +54,7 @@ class TaskMetrics:
         self._keys: frozenset[tuple[str, str]] = frozenset()
         self.evaluating = False
         self.values: dict[tuple[str, str], torch.Tensor] = {}
+        self._replayed: dict[tuple[str, str], torch.Tensor] = {}  # recorded while the step was captured
 
     @property
     def declared(self) -> tuple[Metric, ...]:
@@ -74,12 +75,19 @@ class TaskMetrics:
         """Test mode (``learning/runner.evaluate``): the task records its ``PER_STEP`` metrics from now on."""
         self.evaluating = on
 
-    def begin_step(self) -> None:
+    def begin_step(self, replay: bool = False) -> None:
         """A step (or a reset) records into an empty mapping, made outside the compiled step: torch.compile guards
         on the entries of a dict the compiled code writes into, and an empty one is the same every step. The
-        declarations are read here the first time, never inside the compiled step."""
+        declarations are read here the first time, never inside the compiled step.
+
+        ``replay``: the step replays captured CUDA graphs, which run no Python and record nothing; they rewrite in
+        place the tensors recorded while the step was captured (``hold_for_replays``), so those are its values."""
         self._declared_keys()
-        self.values = {}
+        self.values = dict(self._replayed) if replay else {}
+
+    def hold_for_replays(self) -> None:
+        """The step just recorded was captured: its replays report the tensors it recorded."""
+        self._replayed = dict(self.values)
 
     def record(self, metric: Metric, value: torch.Tensor) -> None:
         """``metric``'s value in this step (its kind says the shape)."""

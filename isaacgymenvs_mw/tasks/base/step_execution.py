@@ -103,6 +103,11 @@ class StepExecution:
         parts = [name for name, on in (("compiled", self.compiled), ("captured", self.graphs_wanted)) if on]
         return "+".join(parts) or "eager"
 
+    @property
+    def replays(self) -> bool:
+        """The next ``run`` replays captured graphs: none of the step's Python code runs."""
+        return self.graphs is not None
+
     def run(self, actions: torch.Tensor) -> None:
         if self.steps == 0 and self._step is not None:
             start_compile_workers_ignoring_sigterm()

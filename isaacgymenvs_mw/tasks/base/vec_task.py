@@ -54,8 +54,7 @@ class VecTask:
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
-        # graphics_device_id, virtual_screen_capture and force_render are IsaacGymEnvs' signature; nothing here uses
-        # them (headless=False opens MuJoCo's viewer; capture_video records).
+        # graphics_device_id, virtual_screen_capture, force_render: IsaacGymEnvs' signature, unused here
         self.cfg = config
         check_required_hooks(type(self), VecTask)
         self.sim_device = resolve_device(sim_device, "sim_device")
@@ -297,9 +296,11 @@ class VecTask:
 
     def step(self, actions: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor, dict]:
         """Apply actions, run controlFrequencyInv physics steps, and return (obs_dict, rew, reset, extras)."""
-        self.metrics.begin_step()
+        self.metrics.begin_step(replay := self.execution.replays)
         with fresh_dict(self, "extras"):
             self.execution.run(actions)  # the step's phases: eager, compiled or captured
+        if not replay and self.execution.replays:  # this step was captured: the replays rewrite what it recorded
+            self.metrics.hold_for_replays()
 
         self.extras.update(self.episode.step_extras(self.rl_device))
         self.observations.step_outputs(self.obs_dict, self.execution.steps)
