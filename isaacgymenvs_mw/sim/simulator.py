@@ -396,7 +396,7 @@ class Simulator:
         """
         if self._kernels_recorded is None:
             self.load_kernels()
-        if self.use_graphs and torch.cuda.is_current_stream_capturing():
+        if self.use_graphs and self.wp_device.is_cuda and torch.cuda.is_current_stream_capturing():
             # torch is capturing the step (a reset's kinematics refresh in the captured post-physics step): the
             # launches go to torch's capturing stream and become part of its graph. On Warp's own stream they
             # would run once, now, and never when torch replays the step.
