@@ -17,6 +17,8 @@
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
 #   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
 #   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
+#   regression  Go1, G1, Anymal and FrankaCabinet, seed 1 each, shipped iterations (their README rows still hold?)
+#   camera    CartpoleCamera at 4096 envs, seeds 1 and 2 (its README row)
 # SEEDS=1,2 and BUDGET=600 (training seconds) replace a sweep's seeds and budget; CUDA_VISIBLE_DEVICES=2,3 keeps it
 # to those GPUs, so two sweeps can share a 4-GPU machine.
 # A budget over one device call (10 minutes) runs detached and is waited for in the next call:
@@ -44,7 +46,17 @@ case "$name" in
   shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=${SEEDS:-1,2} ;;
   balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   quad) sweep 120 task=Quadcopter seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, allegro, allegro_vn, rgb, shadow, balance or quad"; exit 2 ;;
+  regression) sweep 300 task=Go1,G1,Anymal,FrankaCabinet seed=${SEEDS:-1} ;;
+  camera) sweep 120 task=CartpoleCamera num_envs=4096 seed=${SEEDS:-1,2} ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, allegro, allegro_vn, rgb, shadow, balance, quad, regression or camera"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
+# Every test-mode result in full (the table shows the sweep metric only): the README rows' numbers.
+python3 - "$out" <<'PY'
+import json, pathlib, sys
+for path in sorted(pathlib.Path(sys.argv[1]).glob("sweeps/*/job*/*/*/eval.json")):
+    result = json.loads(path.read_text())
+    print(path.parts[-5], {k: round(v, 4) if isinstance(v, float) else v for k, v in result.items()
+                           if isinstance(v, (int, float)) and k != "num_envs"})
+PY
 touch "$out/done"
