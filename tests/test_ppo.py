@@ -265,3 +265,74 @@ def test_bad_bounds_loss_coef_names_the_key(value):
 
     with pytest.raises(ConfigError, match=r"^train\.algorithm\.bounds_loss_coef=.* is invalid: give a number >= 0$"):
         build(SYNC_FREE, bounds_loss_coef=value)
+
+
+# ---------------------------------------------------------------- learning-rate bounds of the adaptive schedule
+
+@pytest.mark.parametrize(("kl", "low", "high"), [
+    (1.0, 1.5e-4, 1e-2),   # far above 2 x desired_kl: each step divides by 1.5, stopping at the floor
+    (1e-9, 1e-5, 4e-3),    # far below desired_kl / 2 (but > 0): each step multiplies by 1.5, up to the ceiling
+])
+def test_adaptive_rule_stops_at_the_configured_bounds(kl, low, high):
+    """Step by step against the rule written out: lr / 1.5 floored at the minimum, lr * 1.5 capped at the maximum.
+    1e-3 / 1.5**5 and 1e-3 * 1.5**4 overshoot the bounds, so a missing or hard-coded clamp gives another rate."""
+    alg = build(SYNC_FREE, desired_kl=0.01, learning_rate_min=low, learning_rate_max=high)
+    expected = START_LR
+    for _ in range(8):
+        alg._adapt_learning_rate(torch.tensor(kl, dtype=torch.float64))
+        expected = max(low, expected / 1.5) if kl > 0.02 else min(high, expected * 1.5)
+        assert alg._lr64.item() == expected
+        assert alg._lr.item() == torch.tensor(expected, dtype=torch.float32).item()  # the rate Adam reads
+    assert expected == (low if kl > 0.02 else high)
+
+
+@pytest.mark.parametrize(("desired_kl", "bound"), [(1e-7, "min"), (10.0, "max")])
+def test_training_ends_exactly_at_the_bound(desired_kl, bound):
+    """Four updates (24 mini-batches) with every KL far outside the band: the rate ends at the bound, never past it."""
+    low, high = 1.5e-4, 4e-3
+    alg = build(SYNC_FREE, desired_kl=desired_kl, learning_rate_min=low, learning_rate_max=high)
+    rates = [h["lr"] for h in train(alg, 4, data_seed=7)]
+    assert all(low <= rate <= high for rate in rates)
+    assert rates[-1] == (low if bound == "min" else high)
+
+
+def test_resumed_rate_outside_narrower_bounds_starts_at_the_nearest_bound():
+    trained = build(SYNC_FREE, desired_kl=10.0)  # the rate climbs to rsl-rl-lib's ceiling, 1e-2
+    train(trained, 2, data_seed=3)
+    assert trained.learning_rate == 1e-2
+    resumed = build(SYNC_FREE, desired_kl=10.0, learning_rate_max=2e-3)
+    resumed.load(copy.deepcopy(trained.save()), None, strict=True)
+    assert resumed.learning_rate == 2e-3 and resumed._lr64.item() == 2e-3
+    assert resumed.optimizer.param_groups[0]["lr"].item() == torch.tensor(2e-3).item()
+
+
+@pytest.mark.parametrize(("settings", "message"), [
+    ({"learning_rate_min": 0.0}, r"train\.algorithm\.learning_rate_min=0\.0 is invalid: give a number > 0\.0"),
+    ({"learning_rate_max": -1e-3}, r"train\.algorithm\.learning_rate_max=-0\.001 is invalid: give a number > 0\.0"),
+    ({"learning_rate_min": "abc"}, r"train\.algorithm\.learning_rate_min='abc' is invalid: give a number > 0\.0"),
+    ({"learning_rate_min": 2e-3, "learning_rate_max": 1e-3},
+     r"train\.algorithm\.learning_rate_min=0\.002 is invalid: give a number <= train\.algorithm\.learning_rate_max "
+     r"\(0\.001\)"),
+    ({"learning_rate_min": 2e-3},  # above the starting learning_rate, 1e-3
+     r"train\.algorithm\.learning_rate=0\.001 is invalid with the adaptive schedule: give a number within "
+     r"\[train\.algorithm\.learning_rate_min, train\.algorithm\.learning_rate_max\] = \[0\.002, 0\.01\]"),
+    ({"learning_rate_max": 5e-4},
+     r"train\.algorithm\.learning_rate=0\.001 is invalid with the adaptive schedule: give a number within "
+     r"\[train\.algorithm\.learning_rate_min, train\.algorithm\.learning_rate_max\] = \[1e-05, 0\.0005\]"),
+    ({"schedule": "fixed", "learning_rate_max": 5e-3},
+     r"train\.algorithm\.learning_rate_max=0\.005 has no effect: the learning rate moves only with "
+     r"train\.algorithm\.schedule=adaptive and a train\.algorithm\.desired_kl \(got schedule='fixed', "
+     r"desired_kl=0\.01\); remove it or set both"),
+    ({"desired_kl": None, "learning_rate_min": 1e-4},
+     r"train\.algorithm\.learning_rate_min=0\.0001 has no effect: .* \(got schedule='adaptive', desired_kl=None\); remove it or set both"),
+])
+def test_bad_learning_rate_bounds_name_the_key(settings, message):
+    from isaacgymenvs_mw.utils.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"^{message}$"):
+        build(SYNC_FREE, **settings)
+
+
+def test_default_bounds_are_accepted_with_the_fixed_schedule():
+    alg = build(SYNC_FREE, schedule="fixed", learning_rate_min=1e-5, learning_rate_max=1e-2)
+    assert train(alg, 1, data_seed=7)[-1]["lr"] == START_LR

@@ -30,7 +30,7 @@ from tensordict import TensorDict
 from isaacgymenvs_mw.utils.config import boolean, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants
+LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants (bounds: the defaults)
 EAGER_UPDATES_BEFORE_CAPTURE = 1
 
 
@@ -128,6 +128,12 @@ class SyncFreePPO(PPO):
     ``bounds_loss_coef`` (train YAML ``algorithm.bounds_loss_coef``, default 0: none): weight of rl_games' bounds
     loss on the action means (``bounds_loss``), which IsaacGymEnvs' configs use.
 
+    ``learning_rate_min``, ``learning_rate_max`` (train YAML ``algorithm.learning_rate_min`` / ``_max``, default 1e-5
+    and 1e-2: rsl-rl-lib's fixed bounds): the range in which the ``adaptive`` schedule keeps the learning rate. Both
+    must be positive with min <= ``learning_rate`` <= max; a checkpoint's rate outside them is resumed at the nearest
+    bound. They apply only to the ``adaptive`` schedule with a ``desired_kl``: with ``fixed`` (or no ``desired_kl``)
+    the rate never moves, so a bound other than its default is refused rather than ignored.
+
     ``capture_update`` (``auto``, ``True``, ``False``; train YAML ``algorithm.capture_update``): replay the update as
     a CUDA graph. ``auto`` captures where it can: a CUDA device, feed-forward networks, no mixed precision.
     The first update runs eagerly (it creates Adam's state), the second captures. With several GPUs call
@@ -144,8 +150,10 @@ class SyncFreePPO(PPO):
     """
 
     def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0,
-                 normalize_value: bool = False, **kwargs) -> None:
+                 normalize_value: bool = False, learning_rate_min: float = LR_MIN, learning_rate_max: float = LR_MAX,
+                 **kwargs) -> None:
         super().__init__(*args, **kwargs)
+        self.learning_rate_min, self.learning_rate_max = self._check_rate_bounds(learning_rate_min, learning_rate_max)
         self.bounds_loss_coef = real_number(bounds_loss_coef, "train.algorithm.bounds_loss_coef", low=0)
         self.normalize_value = boolean(normalize_value, "train.algorithm.normalize_value")
         self.value_normalizer = ValueNormalizer(self.device) if self.normalize_value else None
@@ -193,6 +201,29 @@ class SyncFreePPO(PPO):
         self._eager_updates = 0
         self._install_device_learning_rate()
 
+    @property
+    def _adaptive(self) -> bool:
+        return self.desired_kl is not None and self.schedule == "adaptive"
+
+    def _check_rate_bounds(self, low, high) -> tuple[float, float]:
+        key = "train.algorithm.learning_rate"
+        low = real_number(low, f"{key}_min", 0.0, low_open=True)
+        high = real_number(high, f"{key}_max", 0.0, low_open=True)
+        if not self._adaptive:
+            for name, value, default in (("min", low, LR_MIN), ("max", high, LR_MAX)):
+                if value != default:
+                    raise ConfigError(
+                        f"{key}_{name}={value!r} has no effect: the learning rate moves only with "
+                        f"train.algorithm.schedule=adaptive and a train.algorithm.desired_kl (got "
+                        f"schedule={self.schedule!r}, desired_kl={self.desired_kl!r}); remove it or set both")
+            return low, high
+        if low > high:
+            raise ConfigError(f"{key}_min={low!r} is invalid: give a number <= {key}_max ({high!r})")
+        if not low <= self.learning_rate <= high:
+            raise ConfigError(f"{key}={self.learning_rate!r} is invalid with the adaptive schedule: give a number "
+                              f"within [{key}_min, {key}_max] = [{low!r}, {high!r}]")
+        return low, high
+
     def _resolve_capture(self, value: bool | str) -> bool:
         unmet = [need for need, missing in (
             ("a CUDA rl_device", not self._on_cuda), ("feed-forward actor and critic", self._recurrent),
@@ -235,6 +266,8 @@ class SyncFreePPO(PPO):
     def _install_device_learning_rate(self) -> None:
         """Put the optimizer's current rate into device tensors that Adam reads at each step."""
         rate = float(self.optimizer.param_groups[0]["lr"])
+        if self._adaptive:  # a checkpoint's rate from outside this run's bounds (a resume with narrower ones)
+            rate = min(max(rate, self.learning_rate_min), self.learning_rate_max)
         self.learning_rate = rate
         # The rule runs in float64 like rsl-rl-lib's Python floats; Adam reads the float32 copy.
         self._lr64 = torch.tensor(rate, dtype=torch.float64, device=self.device)
@@ -255,8 +288,8 @@ class SyncFreePPO(PPO):
     def _adapt_learning_rate(self, kl_mean: torch.Tensor) -> None:
         too_far = kl_mean > self.desired_kl * 2.0
         too_close = (kl_mean < self.desired_kl / 2.0) & (kl_mean > 0.0)
-        lowered = torch.clamp(self._lr64 / LR_FACTOR, min=LR_MIN)
-        raised = torch.clamp(self._lr64 * LR_FACTOR, max=LR_MAX)
+        lowered = torch.clamp(self._lr64 / LR_FACTOR, min=self.learning_rate_min)
+        raised = torch.clamp(self._lr64 * LR_FACTOR, max=self.learning_rate_max)
         self._lr64.copy_(torch.where(too_far, lowered, torch.where(too_close, raised, self._lr64)))
         self._lr.copy_(self._lr64)
 
@@ -362,7 +395,7 @@ class SyncFreePPO(PPO):
                     old_distribution_params=tuple(p[idx] for p in old_params))
 
     def _optimisation_steps(self, batches: Iterable[RolloutStorage.Batch]) -> torch.Tensor:
-        adaptive = self.desired_kl is not None and self.schedule == "adaptive"
+        adaptive = self._adaptive
         loss_sums = torch.zeros(3, device=self.device)
         for batch in batches:
             if self.normalize_advantage_per_mini_batch:
