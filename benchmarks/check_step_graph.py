@@ -4,9 +4,13 @@ plain eager step computes.
 Builds the task twice (shipped and eager step), puts both in the same deterministic state (default pose, no
 noise, pushes or randomisation, same commands), drives both with the same actions and compares rewards and resets
 step by step (observations are reported: they drift apart because GPU contact physics is not bit-deterministic).
-Prints one JSON line; exits 1 on a mismatch.
+The task metrics each step records (tasks/base/metrics.py) are compared too: a metric one twin reports and the
+other does not is a mismatch (a captured step whose replays lost them). Compiled random ops draw eager's numbers
+(``torch._inductor.config.fallback_random``), so both twins reset to the same states. Prints one JSON line; exits 1
+on a mismatch.
 
   python benchmarks/check_step_graph.py --task Go1 --num_envs 1024 --steps 60 [--randomization fixed]
+  python benchmarks/check_step_graph.py --task FrankaCubeLift --device cpu --num_envs 8   # compiled vs eager, no graphs
 
 ``--randomization fixed`` (benchmarks/randomization_presets.py) runs both with every randomised quantity drawn at
 each reset as a single value, a one-step action delay and the torque-speed limit: the same numbers for both
@@ -20,8 +24,10 @@ import json
 import sys
 
 import torch
+import torch._inductor.config
 
 from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING
 from isaacgymenvs_mw.utils.config import compose_config
 from randomization_presets import apply as apply_randomization
 
@@ -42,39 +48,82 @@ def main() -> None:
                         help="also require that the worlds a step reset hold the body and site poses of their new "
                              "qpos (tasks whose reset refreshes the kinematics: Franka cube tasks, Quadcopter, "
                              "BallBalance), i.e. that the captured step replays that refresh")
+    parser.add_argument("--device", default="cuda:0", help="cuda:0 (compiled and captured) or cpu (compiled only)")
     args = parser.parse_args()
-    base = [f"task={args.task}", f"num_envs={args.num_envs}", "sim_device=cuda:0", "rl_device=cuda:0",
+    torch._inductor.config.fallback_random = True
+    device = args.device
+    base = [f"task={args.task}", f"num_envs={args.num_envs}", f"sim_device={device}", f"rl_device={device}",
             "headless=True", *(DETERMINISTIC if args.task in LEGGED else [])]
     preset = args.randomization if args.task != "Cartpole" else "off"
-    graphed = build_task(apply_randomization(compose_config([*base, "+task.sim.captureStep=True"]), preset))
+    shipped = ["+task.sim.captureStep=True"] if device.startswith("cuda") else ["+task.sim.compileStep=True"]
+    graphed = build_task(apply_randomization(compose_config([*base, *shipped]), preset))
     eager = build_task(apply_randomization(compose_config([*base, "+task.sim.captureStep=False",
                                                            "+task.sim.compileStep=False"]), preset))
-    graphed.reset()
-    eager.reset()
+    draws = RandomStream(device)  # tasks draw from torch's global generators: each twin gets the same numbers
+    draws.twin(graphed.reset, eager.reset)
     if hasattr(graphed, "commands"):
         eager.commands.copy_(graphed.commands)
     eager.sim.qpos.copy_(graphed.sim.qpos)
     eager.sim.qvel.copy_(graphed.sim.qvel)
-    gen = torch.Generator(device="cuda:0").manual_seed(0)
-    worst = {"obs": 0.0, "rew": 0.0, "reset_mismatches": 0}
+    gen = torch.Generator(device=device).manual_seed(0)
+    worst = {"obs": 0.0, "rew": 0.0, "reset_mismatches": 0, "metrics": 0.0, "metric_mismatches": []}
     for _ in range(args.steps):
-        a = 0.3 * (2.0 * torch.rand(graphed.num_envs, graphed.num_actions, device="cuda:0", generator=gen) - 1.0)
-        og, rg, dg, _ = graphed.step(a)
-        oe, re, de, _ = eager.step(a)
+        a = 0.3 * (2.0 * torch.rand(graphed.num_envs, graphed.num_actions, device=device, generator=gen) - 1.0)
+        (og, rg, dg, _), (oe, re, de, _) = draws.twin(lambda: graphed.step(a), lambda: eager.step(a))
         worst["obs"] = max(worst["obs"], float((og["obs"] - oe["obs"]).abs().max()))
         worst["rew"] = max(worst["rew"], float((rg - re).abs().max()))
         worst["reset_mismatches"] += int((dg != de).sum())
+        compare_metrics(graphed, eager, worst)
         if args.reset_poses and bool(dg.any()):
             worst["reset_pose_error"] = max(worst.get("reset_pose_error", 0.0), reset_pose_error(graphed, dg.bool()))
     # GPU contact physics is not bit-deterministic, so observations of the two runs drift apart over the steps
     # (reported); rewards and resets are what must agree.
-    ok = graphed.execution.graphs is not None and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0
+    captured = graphed.execution.graphs is not None or not device.startswith("cuda")
+    ok = captured and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0 and not worst["metric_mismatches"]
     if args.reset_poses:
         ok = ok and worst.get("reset_pose_error", float("inf")) < 1e-4  # inf: no world was reset, nothing checked
     print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps, "randomization": preset,
                       "graph_captured": graphed.execution.graphs is not None,
                       "step_execution": [graphed.step_execution, eager.step_execution], **worst, "ok": ok}), flush=True)
     sys.exit(0 if ok else 1)
+
+
+class RandomStream:
+    """Torch's global random state (CPU and, on CUDA, the device's), handed to both twins from the same point."""
+
+    def __init__(self, device: str) -> None:
+        self.cuda = device.startswith("cuda")
+
+    def _get(self) -> tuple:
+        return torch.get_rng_state(), torch.cuda.get_rng_state() if self.cuda else None
+
+    def _set(self, state: tuple) -> None:
+        torch.set_rng_state(state[0])
+        if self.cuda:
+            torch.cuda.set_rng_state(state[1])
+
+    def twin(self, first, second) -> tuple:
+        """``first()`` and ``second()`` from the same random state; the state ends where ``first`` left it."""
+        start = self._get()
+        one = first()
+        end = self._get()
+        self._set(start)
+        two = second()
+        self._set(end)
+        return one, two
+
+
+def compare_metrics(graphed, eager, worst: dict) -> None:
+    """The metrics the twins recorded in this step: the same names (a name only one reports is listed once in
+    ``metric_mismatches``), and their largest difference in ``metrics``."""
+    for kind in (EPISODE_SUM, RUNNING, OUTCOME):
+        mine, theirs = graphed.metrics.recorded(kind), eager.metrics.recorded(kind)
+        for name in mine.keys() ^ theirs.keys():
+            if f"{kind}:{name}" not in worst["metric_mismatches"]:
+                worst["metric_mismatches"].append(f"{kind}:{name}")
+        for name in mine.keys() & theirs.keys():
+            difference = (mine[name].float() - theirs[name].float()).abs().max()
+            worst["metrics"] = max(worst["metrics"], float(difference))
 
 
 def reset_pose_error(task, reset: torch.Tensor) -> float:
