@@ -9,12 +9,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 from omegaconf import OmegaConf
 
 from conftest import REPO_ROOT
 from isaacgymenvs_mw.learning.launch import run
-from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.config import check_run_config, compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 SUMMARY_KEYS = {"task", "num_envs", "iterations", "env_steps", "wall_time_s", "env_steps_per_s",
                 "mean_episode_reward", "mean_episode_length", "device", "versions"}
@@ -90,6 +92,32 @@ def test_short_training_writes_artefacts_and_test_mode_evaluates(tmp_path, run_a
     assert result["mean_episode_length"] == written["mean_episode_length"]
     # test mode writes no new run directory
     assert only_run_dir(tmp_path / "runs") == run_dir
+
+
+def test_a_training_time_budget_ends_the_run_after_the_iteration_that_reaches_it(tmp_path, run_args):
+    budget = 0.4  # seconds of training: several Cartpole iterations of 8 envs on the CPU
+    cfg = compose_config(["task=Cartpole", "num_envs=8", "max_iterations=10000", f"max_train_time_s={budget}",
+                          *run_args])
+    summary = run(cfg)
+    times = [entry["time_s"] for entry in summary["history"]]
+    assert summary["time_budget_reached"] and not summary["interrupted"]
+    assert times[-1] >= budget and (len(times) == 1 or times[-2] < budget)  # the first iteration at the budget
+    assert summary["iterations"] == len(times) < 10000
+    assert (only_run_dir(tmp_path / "runs") / f"model_{len(times)}.pt").is_file()  # the final checkpoint
+
+
+def test_a_budget_not_reached_leaves_the_run_to_its_iterations(tmp_path, run_args):
+    summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=2", "max_train_time_s=1e6",
+                                  *run_args]))
+    assert summary["iterations"] == 2 and not summary["time_budget_reached"]
+
+
+@pytest.mark.parametrize("value", [0, -5, "ten", float("nan"), True])
+def test_a_bad_training_time_budget_is_one_line_naming_the_key(value):
+    cfg = compose_config(["task=Cartpole"])
+    cfg.max_train_time_s = value
+    with pytest.raises(ConfigError, match=r"^max_train_time_s=.* is invalid: give a number > 0.0$"):
+        check_run_config(cfg)
 
 
 def test_cpu_training_learns_to_balance(tmp_path, run_args):

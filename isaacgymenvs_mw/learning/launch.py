@@ -26,7 +26,7 @@ from isaacgymenvs_mw.learning.runner import (
 )
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
-from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, to_dict
+from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, time_budget, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError, one_line
 from isaacgymenvs_mw.utils.seeding import set_seed
@@ -93,12 +93,15 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     interrupted: KeyboardInterrupt | None = None
     # From here on a signal only asks the run to stop, and the summary is always written: a signal that comes while
     # it is written is recorded, not raised.
+    budget = time_budget(cfg.get("max_train_time_s", ""))
     with PROCESS_STOP.training(runner):
         print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
-              f"{max_iterations} iterations, run dir {run_dir}", flush=True)
+              f"{max_iterations} iterations{f' or {budget:g} s of training' if budget else ''}, run dir {run_dir}",
+              flush=True)
         try:
             runner.learn(max_iterations,
-                         init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)))
+                         init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)),
+                         max_train_time_s=budget)
         except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): Runner.learn has saved the model
             interrupted = err
         summary = _summary(cfg, task, runner, seed, start_it, started_at, run_dir, interrupted)
@@ -138,6 +141,7 @@ def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, st
         "device": device_description(task.sim_device),
         "versions": package_versions(),
         "run_dir": str(run_dir),
+        "time_budget_reached": runner.time_budget_reached,  # ended at max_train_time_s
         "interrupted": interrupted is not None,
         "signal": None if interrupted is None else signal.Signals(_signal_number(interrupted)).name,
         "interrupted_checkpoint": runner.interrupted_checkpoint,

@@ -82,6 +82,7 @@ class Runner(OnPolicyRunner):
         self.experiment = "run"  # W&B's default project
         self.stop_signal: int | None = None  # set from a signal handler; learn() stops at the next env step
         self.interrupted_checkpoint: str | None = None  # the model_<it>_interrupted.pt a stop wrote
+        self.time_budget_reached = False  # learn() ended at max_train_time_s, before its last iteration
         self.last_checkpoint: str | None = None
         # Learner health: optimiser steps skipped for a non-finite loss or gradient, worlds whose observation or
         # reward held NaN/inf, and how often the last finite learner state was put back.
@@ -90,7 +91,11 @@ class Runner(OnPolicyRunner):
         self.guard = LearnerGuard(lambda: learner_tensors(self.alg))
         self._good_iteration: int | None = None  # the iteration whose learner state the guard holds
 
-    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False,
+              max_train_time_s: float | None = None) -> None:
+        """Train for ``num_learning_iterations``, or until ``max_train_time_s`` seconds of training (rollouts and
+        updates, as ``train_time_s`` counts them) are spent: the run then ends after that iteration as it would
+        after its last one (final checkpoint, summary)."""
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
         writer = None
         if self.log_dir and self.is_main:
@@ -142,9 +147,12 @@ class Runner(OnPolicyRunner):
                 restored = self._keep_learner_finite(it + 1)
                 self._log_iteration(writer, it, last_it, t2 - t0 - learn_s, learn_s, losses, skipped, restored)
                 keep_stop_handler()
+                self._stop_if_requested()
+                if max_train_time_s is not None and self._budget_spent(max_train_time_s):
+                    self.time_budget_reached = True
+                    break
                 if self.is_main and self.log_dir and (it + 1) % self.cfg["save_interval"] == 0:
                     self._save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
-                self._stop_if_requested()
         except BaseException:
             # An interrupted run keeps what it learned so far.
             if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
@@ -161,6 +169,16 @@ class Runner(OnPolicyRunner):
                 if isinstance(writer, LogWriter):
                     writer.stop()
                 self.logger.writer = None
+
+    def _budget_spent(self, budget_s: float) -> bool:
+        """Whether the training time has reached ``budget_s``; with several GPUs, on any rank (so that all stop
+        after the same iteration: their clocks differ slightly)."""
+        spent = self.train_time >= budget_s
+        if self.is_distributed:
+            flag = torch.tensor(float(spent), device=self.device)
+            torch.distributed.all_reduce(flag, op=torch.distributed.ReduceOp.MAX)
+            spent = bool(flag.item())
+        return spent
 
     def _save(self, path: str) -> None:
         self.save(path)

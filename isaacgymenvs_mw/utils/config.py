@@ -165,11 +165,19 @@ def check_run_config(cfg: DictConfig) -> None:
         if key in cfg:
             boolean(cfg[key], key)
     cpu_threads(cfg.get("cpu_threads", 1))
+    time_budget(cfg.get("max_train_time_s", ""))
     for key in _RUN_TEXT:
         value = cfg.get(key, "")
         if not isinstance(value, str) or (key in _RUN_NONEMPTY and not value.strip()):
             wanted = "a non-empty string" if key in _RUN_NONEMPTY else "a string"
             raise ConfigError(f"{key}={value!r} is invalid: give {wanted}")
+
+
+def time_budget(value) -> float | None:
+    """The run key ``max_train_time_s``: None for '' (no budget), else seconds > 0."""
+    if value in ("", None):
+        return None
+    return real_number(value, "max_train_time_s", low=0.0, low_open=True)
 
 
 def cpu_threads(value) -> int:
