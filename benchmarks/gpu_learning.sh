@@ -19,6 +19,7 @@
 #   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
 #   allegro_phys  AllegroHand, seeds 1 and 2, with Isaac Lab's MuJoCo Warp contact settings: 240 Hz physics (its 2
 #             substeps at 120 Hz; policy still 30 Hz) and 100 solver iterations (ours: 120 Hz, 10)
+#   stack_osc FrankaCubeStack, seeds 1 and 2, value normalisation on, IGE's operational-space control (controlType=osc)
 #   regression  Go1, G1, Anymal and FrankaCabinet, seed 1 each, shipped iterations (their README rows still hold?)
 #   camera    CartpoleCamera at 4096 envs, seeds 1 and 2 (its README row)
 # SEEDS=1,2 and BUDGET=600 (training seconds) replace a sweep's seeds and budget; CUDA_VISIBLE_DEVICES=2,3 keeps it
@@ -51,9 +52,11 @@ case "$name" in
   quad) sweep 120 task=Quadcopter seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   allegro_phys) sweep 1500 task=AllegroHand seed=${SEEDS:-1,2} task.sim.dt=0.004166666666666667 \
                 task.env.controlFrequencyInv=8 task.sim.iterations=100 ;;
+  stack_osc) sweep 900 task=FrankaCubeStack seed=${SEEDS:-1,2} +train.algorithm.normalize_value=True \
+             task.env.controlType=osc ;;
   regression) sweep 300 task=Go1,G1,Anymal,FrankaCabinet seed=${SEEDS:-1} ;;
   camera) sweep 120 task=CartpoleCamera num_envs=4096 seed=${SEEDS:-1,2} ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, allegro, allegro_vn, allegro_phys, rgb, shadow, balance, quad, regression or camera"; exit 2 ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, balance, quad, regression or camera"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
 # Every test-mode result in full (the table shows the sweep metric only): the README rows' numbers.
