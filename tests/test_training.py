@@ -8,9 +8,11 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
+import torch.multiprocessing as mp
 from omegaconf import OmegaConf
 
 from conftest import REPO_ROOT
@@ -128,3 +130,26 @@ def test_cpu_training_learns_to_balance(tmp_path, run_args):
     assert trained >= 3 * untrained, (untrained, trained)
     assert trained >= 200, (untrained, trained)
     assert summary["mean_episode_reward"] > summary["history"][0]["mean_episode_reward"] + 100
+
+
+def _budget_rank(rank: int, world: int, init_file: str, train_times: list[float], budget: float, results) -> None:
+    import torch.distributed as dist
+
+    from isaacgymenvs_mw.learning.runner import Runner
+
+    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    try:
+        rank_view = SimpleNamespace(train_time=train_times[rank], is_distributed=True, device="cpu")
+        results[rank] = Runner._budget_spent(rank_view, budget)
+    finally:
+        dist.destroy_process_group()
+
+
+@pytest.mark.parametrize(("train_times", "spent"), [([5.0, 3.0], True), ([3.0, 5.0], True), ([3.0, 3.5], False)])
+def test_with_several_gpus_every_rank_stops_when_any_rank_spent_the_budget(tmp_path, train_times, spent):
+    """The ranks' clocks differ slightly; if one stopped alone the others would wait for it in their next
+    all-reduce forever. gloo on the CPU stands in for NCCL."""
+    with mp.Manager() as manager:
+        results = manager.dict()
+        mp.spawn(_budget_rank, args=(2, str(tmp_path / "rendezvous"), train_times, 4.0, results), nprocs=2)
+        assert dict(results) == {0: spent, 1: spent}
