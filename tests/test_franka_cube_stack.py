@@ -260,6 +260,13 @@ def test_control_type_errors_are_one_line_naming_the_key(value, message):
              overrides=[f"task.env.controlType={value}"])
 
 
+@pytest.mark.parametrize("control, actions", [("osc", 8), ("joint_pos", 7)])
+def test_an_action_count_that_does_not_fit_the_control_type_is_one_line(control, actions):
+    with pytest.raises(ConfigError, match=rf"numActions={actions} "):
+        make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+             overrides=[f"task.env.controlType={control}", f"task.env.numActions={actions}"])
+
+
 def test_training_one_iteration_then_test_mode_reports_a_success_rate(tmp_path, run_args):
     cfg = compose_config(["task=FrankaCubeStack", "num_envs=4", "max_iterations=1", "task.env.episodeLength_s=0.1",
                           "train.runner.num_steps_per_env=8", *run_args])
@@ -300,11 +307,11 @@ def test_osc_law_equals_the_formula_written_with_numpy():
 def test_osc_moves_the_grasp_point_along_the_commanded_axis():
     env = make("FrankaCubeStack", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
                overrides=["task.env.controlType=osc", "task.env.frankaDofNoise=0.0"])
-    assert env.num_obs == 19  # IGE's osc observation
+    assert env.num_obs == 19 and env.num_actions == 7  # IGE's osc observation and actions (numActions follows)
     env.reset()
-    env.step(torch.zeros(2, 8))
+    env.step(torch.zeros(2, 7))
     start = env.arm.grasp_pos().clone()
-    action = torch.zeros(2, 8)
+    action = torch.zeros(2, 7)
     action[0, 0] = 1.0   # world 0: +x
     action[1, 2] = -1.0  # world 1: -z
     for _ in range(30):  # half a second

@@ -15,7 +15,8 @@ Control (``env.controlType``):
     the grasp frame (m, rad; world axes), turned into arm torques through the task-space inertia from the mass
     matrix and the grasp site's Jacobian (``sim.dynamics.SiteDynamics``), plus a null-space pull toward
     ``startDofPos``; gains ``oscKp`` and ``oscKpNull``, critically damped (kd = 2 sqrt(kp)), as IGE.
-  The last action is the gripper in every mode: >= 0 opens the fingers (0.04 m each), < 0 closes them.
+  The last action is the gripper in every mode: >= 0 opens the fingers (0.04 m each), < 0 closes them (8 actions
+  in joint_pos and joint_tor, IGE's 7 in osc).
 
 Differences from IsaacGymEnvs, on purpose: cube B rests on the table (IGE spawns it with cube A's half-size, 1 cm
 into the table); quaternions are MuJoCo's (w, x, y, z), IGE's (x, y, z, w); positions are in the robot's base
@@ -116,8 +117,16 @@ class FrankaCubeStack(VecTask):
         self.dynamics = SiteDynamics(self.sim, self.arm.grasp_site, range(7))
 
     # ------------------------------------------------------------------ pre-physics
+    def check_action_size(self) -> None:
+        # osc: IGE's 7 actions (a 6-component pose error and the gripper) drive the 8 actuators through the law
+        if self.control_type != "osc":
+            return super().check_action_size()
+        if self.num_actions != 7:
+            raise ConfigError(f"FrankaCubeStack: task.env.numActions={self.num_actions} is invalid with "
+                              "controlType=osc: give 7 (6 pose-error components and the gripper, IGE's)")
+
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        grip = gripper_command(actions[:, 7])
+        grip = gripper_command(actions[:, -1])
         if self.control_type == "joint_pos":
             self.arm.move_targets(joint_pos_targets_delta(actions, self.arm, self.arm_step))
         elif self.control_type == "joint_tor":
