@@ -59,4 +59,4 @@ def test_cameras_given_as_sensors_are_rendered_in_one_render_and_not_sensed():
     assert (sim.sensor("a", output="depth") > 0).all() and sim.sensor("b", output="segmentation").max() >= 0
     assert sim.sensor("b", output="rgb") is sim.camera("b").rgb
     with pytest.raises(ConfigError, match=r"^two sensors of the model are named 'a'"):
-        Simulator(build_model(request), 1, "cpu", cameras=request.cameras, sensors=request.all_sensors())
+        Simulator(build_model(request), 1, "cpu", sensors=(*request.all_sensors(), request.cameras[0]))

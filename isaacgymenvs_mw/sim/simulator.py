@@ -21,7 +21,7 @@ import warp as wp
 
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
-from isaacgymenvs_mw.sim.cameras import CameraSpec, Cameras, CameraView
+from isaacgymenvs_mw.sim.cameras import Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import KernelLoad, init_warp
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
@@ -105,8 +105,6 @@ class Simulator:
             sums in a fixed order. With mujoco-warp 4.0.0 that is not enough for identical GPU runs (its contact and
             constraint sorts are not implemented; docs/config.md, "Deterministic mode"). Costs speed on GPU (12x for
             Go1); the CPU device runs kernels serially and reproduces runs either way.
-        cameras: camera sensors given apart from ``sensors`` (bound the same way; for a model built with cameras
-            only): their images are ``camera(name)``'s views, rewritten by ``render_cameras()``.
         torque_speed: {joint: (saturation torque, torque limit, no-load speed)} (``ModelRequest.torque_speed``): the
             drives of these joints follow a DC motor's torque-speed curve (``sim/actuators.py``) at every physics
             step; ``self.torque_speed`` then holds the per-world parameter views, which randomisation may rewrite.
@@ -127,7 +125,6 @@ class Simulator:
         per_world_fields: Sequence[str] = (),
         use_graphs: bool | None = None,
         deterministic: bool = False,
-        cameras: Sequence[CameraSpec] = (),
         sensors: Sequence[Sensor] = (),
         torque_speed: Mapping[str, tuple[float, float, float]] | None = None,
     ) -> None:
@@ -175,7 +172,6 @@ class Simulator:
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
-        sensors = (*cameras, *sensors)
         names = [s.name for s in sensors]
         for sensor in sensors:
             if names.count(sensor.name) > 1:
