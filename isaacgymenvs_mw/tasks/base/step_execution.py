@@ -6,12 +6,14 @@ were what a step cost beyond the physics. So, on CUDA:
     which fuses those kernels into a few dozen;
   * after a few eager warm-up steps, the pre- and post-physics work are captured as two CUDA graphs
     (``sim.captureStep``), so that a step costs three graph launches (the physics is the third).
-Both need the task's hooks to be device-only tensor code: no host syncs, no Warp launches in ``post_physics_step``.
-VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics, after physics
-(whose sequence refreshes the computed sensors, ``Simulator.sense()``), render (the sensors a render refreshes, the
-cameras: ``Simulator.render_cameras()``, after the step's resets, with Warp graphs of their own), and, when the task observes camera images, the image observation (torch), so that
-images show the state after the resets. The image observation writes one of two frame-stack buffers, chosen by the step number's parity
-(``ImageStack``), so it is captured twice, once per buffer, and each step replays the one for its parity.
+Both need the task's hooks to be device-only tensor code: no host syncs, and no Warp launches in
+``post_physics_step`` but the simulator's kinematics refresh (``write_state(refresh=True)``), which is an op of the
+compiled graph. VecTask hands the step over as phases (``StepPhases``), run in this order: before physics, physics,
+after physics (whose sequence refreshes the computed sensors, ``Simulator.sense()``), render (the sensors a render
+refreshes, the cameras: ``Simulator.render_cameras()``, after the step's resets, with Warp graphs of their own), and,
+when the task observes camera images, the image observation (torch), so that images show the state after the resets.
+The image observation writes one of two frame-stack buffers, chosen by the step number's parity (``ImageStack``), so
+it is captured twice, once per buffer, and each step replays the one for its parity.
 
 Start-up: compiling the post-physics step (Inductor and Triton code generation, tens of seconds with cold caches)
 and compiling Warp's kernel modules (tens of seconds, on a pool of threads) are both CPU work, and neither needs
