@@ -22,6 +22,8 @@
 #   stack_osc FrankaCubeStack, seeds 1 and 2, value normalisation on, IGE's operational-space control (controlType=osc)
 #   regression  Go1, G1, Anymal and FrankaCabinet, seed 1 each, shipped iterations (their README rows still hold?)
 #   camera    CartpoleCamera at 4096 envs, seeds 1 and 2 (its README row)
+#   cabinet   FrankaCabinet, seeds 1, 2, 3 and 42 (the README row's seed), shipped (seed 1 never opened the drawer)
+#   cabinet_lrmin  the same with a learning-rate floor of 1e-4 (seed 1's adaptive rate sat at 1e-5 from iteration 16)
 # SEEDS=1,2 and BUDGET=600 (training seconds) replace a sweep's seeds and budget; CUDA_VISIBLE_DEVICES=2,3 keeps it
 # to those GPUs, so two sweeps can share a 4-GPU machine.
 # A budget over one device call (10 minutes) runs detached and is waited for in the next call:
@@ -56,7 +58,9 @@ case "$name" in
              task.env.controlType=osc ;;
   regression) sweep 300 task=Go1,G1,Anymal,FrankaCabinet seed=${SEEDS:-1} ;;
   camera) sweep 120 task=CartpoleCamera num_envs=4096 seed=${SEEDS:-1,2} ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, balance, quad, regression or camera"; exit 2 ;;
+  cabinet) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} ;;
+  cabinet_lrmin) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} +train.algorithm.learning_rate_min=1e-4 ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, balance, quad, regression, camera, cabinet or cabinet_lrmin"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
 # Every test-mode result in full (the table shows the sweep metric only): the README rows' numbers.
