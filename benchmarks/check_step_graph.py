@@ -3,7 +3,14 @@ plain eager step computes.
 
 Builds the task twice (shipped and eager step), puts both in the same deterministic state (default pose, no
 noise, pushes or randomisation, same commands), drives both with the same actions and compares rewards and resets
-step by step (observations are reported: they drift apart because GPU contact physics is not bit-deterministic).
+step by step (observations are reported: one step of GPU contact physics is not bit-deterministic).
+By default (``--resync``) each step starts both twins from the same state: before every step the eager twin gets a
+copy of the shipped twin's whole state (the simulator's carried state and mocap poses, and every tensor the task,
+its episode, its reward terms and its randomisation layer hold: goals, targets, success counters, ...), so a step's
+differences are that step's own. Free-running twins (``--no_resync``) diverge in chaotic contact-rich tasks
+(AllegroHand, ShadowHand): a 1e-7 difference grows until a cube falls one step earlier in one twin, a reset mismatch
+that is no bug of the step. After each step the task tensors are compared too (``state_mismatches``: a tensor the
+shipped step updates differently, e.g. a counter or goal a captured replay left as it was).
 The task metrics each step records (tasks/base/metrics.py) are compared too: a metric one twin reports and the
 other does not is a mismatch (a captured step whose replays lost them). Compiled random ops draw eager's numbers
 (``torch._inductor.config.fallback_random``), so both twins reset to the same states. Prints one JSON line; exits 1
@@ -49,6 +56,9 @@ def main() -> None:
                              "qpos (tasks whose reset refreshes the kinematics: Franka cube tasks, Quadcopter, "
                              "BallBalance), i.e. that the captured step replays that refresh")
     parser.add_argument("--device", default="cuda:0", help="cuda:0 (compiled and captured) or cpu (compiled only)")
+    parser.add_argument("--no_resync", dest="resync", action="store_false",
+                        help="let the twins run free from the first state (chaotic tasks then diverge) instead of "
+                             "giving the eager twin the shipped twin's state before each step")
     args = parser.parse_args()
     torch._inductor.config.fallback_random = True
     device = args.device
@@ -66,10 +76,14 @@ def main() -> None:
     eager.sim.qpos.copy_(graphed.sim.qpos)
     eager.sim.qvel.copy_(graphed.sim.qvel)
     gen = torch.Generator(device=device).manual_seed(0)
-    worst = {"obs": 0.0, "rew": 0.0, "reset_mismatches": 0, "metrics": 0.0, "metric_mismatches": []}
+    worst = {"obs": 0.0, "rew": 0.0, "reset_mismatches": 0, "metrics": 0.0, "metric_mismatches": [],
+             "physics": 0.0, "state": 0.0, "state_mismatches": []}
     for _ in range(args.steps):
         a = 0.3 * (2.0 * torch.rand(graphed.num_envs, graphed.num_actions, device=device, generator=gen) - 1.0)
+        if args.resync:
+            copy_state(graphed, eager)
         (og, rg, dg, _), (oe, re, de, _) = draws.twin(lambda: graphed.step(a), lambda: eager.step(a))
+        compare_state(graphed, eager, worst)
         worst["obs"] = max(worst["obs"], float((og["obs"] - oe["obs"]).abs().max()))
         worst["rew"] = max(worst["rew"], float((rg - re).abs().max()))
         worst["reset_mismatches"] += int((dg != de).sum())
@@ -79,10 +93,12 @@ def main() -> None:
     # GPU contact physics is not bit-deterministic, so observations of the two runs drift apart over the steps
     # (reported); rewards and resets are what must agree.
     captured = graphed.execution.graphs is not None or not device.startswith("cuda")
-    ok = captured and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0 and not worst["metric_mismatches"]
+    ok = (captured and worst["rew"] < 1e-3 and worst["reset_mismatches"] == 0 and not worst["metric_mismatches"]
+          and not worst["state_mismatches"])
     if args.reset_poses:
         ok = ok and worst.get("reset_pose_error", float("inf")) < 1e-4  # inf: no world was reset, nothing checked
     print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps, "randomization": preset,
+                      "resync": args.resync,
                       "graph_captured": graphed.execution.graphs is not None,
                       "step_execution": [graphed.step_execution, eager.step_execution], **worst, "ok": ok}), flush=True)
     sys.exit(0 if ok else 1)
@@ -111,6 +127,53 @@ class RandomStream:
         two = second()
         self._set(end)
         return one, two
+
+
+def task_tensors(task) -> dict[str, torch.Tensor]:
+    """Every tensor held directly by the task, its episode, its reward terms and its randomisation layer, by name
+    (the state a step carries to the next beside the simulator's; constants are included, harmlessly)."""
+    owners = {"task": task, "episode": task.episode, "rewards": getattr(task, "rewards", None),
+              "randomizer": getattr(task, "randomizer", None)}
+    return {f"{owner}.{name}": value for owner, obj in owners.items() if obj is not None
+            for name, value in vars(obj).items() if isinstance(value, torch.Tensor)}
+
+
+def sim_tensors(task) -> dict[str, torch.Tensor]:
+    """The simulator's state carried from one physics step to the next, and the mocap poses (goal markers)."""
+    sim = task.sim
+    return {**{f"sim.{name}": view for name, view in sim.save_state().items()},
+            "sim.mocap_pos": sim.mocap_pos, "sim.mocap_quat": sim.mocap_quat}
+
+
+def copy_state(source, target) -> None:
+    """``target`` (the eager twin) gets ``source``'s whole state, in place (the shipped twin's tensors, which its
+    captured graphs read, are only read)."""
+    target.sim.load_state(source.sim.save_state())
+    theirs = {**task_tensors(target), "sim.mocap_pos": target.sim.mocap_pos, "sim.mocap_quat": target.sim.mocap_quat}
+    for name, value in {**task_tensors(source), "sim.mocap_pos": source.sim.mocap_pos,
+                        "sim.mocap_quat": source.sim.mocap_quat}.items():
+        mine = theirs.get(name)
+        if mine is not None and mine.shape == value.shape and mine.dtype == value.dtype and mine is not value:
+            mine.copy_(value)
+
+
+def compare_state(graphed, eager, worst: dict, atol: float = 1e-3, rtol: float = 1e-3) -> None:
+    """After a step from the same state: the task tensors must agree (names of those that do not are listed once in
+    ``state_mismatches``; their largest difference in ``state``); the simulator's state is only reported
+    (``physics``: one step of GPU contact physics is not bit-deterministic)."""
+    theirs = task_tensors(eager)
+    for name, value in task_tensors(graphed).items():
+        other = theirs.get(name)
+        if other is None or other.shape != value.shape or not value.numel():
+            continue
+        gap = (value.double() - other.double()).abs()
+        worst["state"] = max(worst["state"], float(gap.max()))
+        if bool((gap > atol + rtol * other.double().abs()).any()) and name not in worst["state_mismatches"]:
+            worst["state_mismatches"].append(name)
+    theirs = sim_tensors(eager)
+    for name, value in sim_tensors(graphed).items():
+        if value.numel():
+            worst["physics"] = max(worst["physics"], float((value.double() - theirs[name].double()).abs().max()))
 
 
 def compare_metrics(graphed, eager, worst: dict) -> None:
