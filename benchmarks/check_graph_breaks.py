@@ -28,10 +28,12 @@ TASKS = ("Go1", "Anymal", "Cartpole", "Quadcopter", "BallBalance", "FrankaCubeLi
          "FrankaCubeLiftDepth", "AllegroHand", "ShadowHand", "FrankaCabinet")
 
 
-def explain_step(task_name: str, num_envs: int = 4):
-    """torch._dynamo.explain's result for ``task_name``'s post-physics step, traced in the state of a first step."""
+def explain_step(task_name: str, num_envs: int = 4, evaluating: bool = False):
+    """torch._dynamo.explain's result for ``task_name``'s post-physics step, traced in the state of a first step
+    (``evaluating``: in test mode, where tasks record more metrics)."""
     task = isaacgymenvs_mw.make(task_name, num_envs=num_envs, sim_device="cpu", rl_device="cpu", headless=True,
                                 seed=0)
+    task.metrics.evaluate(evaluating)
     task.reset()
     torch._dynamo.reset()
     task.metrics.begin_step()

@@ -56,6 +56,8 @@ def main() -> None:
                              "qpos (tasks whose reset refreshes the kinematics: Franka cube tasks, Quadcopter, "
                              "BallBalance), i.e. that the captured step replays that refresh")
     parser.add_argument("--device", default="cuda:0", help="cuda:0 (compiled and captured) or cpu (compiled only)")
+    parser.add_argument("--evaluating", action="store_true",
+                        help="both twins in test mode (TaskMetrics.evaluate): the step records its test-mode metrics")
     parser.add_argument("--no_resync", dest="resync", action="store_false",
                         help="let the twins run free from the first state (chaotic tasks then diverge) instead of "
                              "giving the eager twin the shipped twin's state before each step")
@@ -69,6 +71,8 @@ def main() -> None:
     graphed = build_task(apply_randomization(compose_config([*base, *shipped]), preset))
     eager = build_task(apply_randomization(compose_config([*base, "+task.sim.captureStep=False",
                                                            "+task.sim.compileStep=False"]), preset))
+    for twin in (graphed, eager):
+        twin.metrics.evaluate(args.evaluating)
     draws = RandomStream(device)  # tasks draw from torch's global generators: each twin gets the same numbers
     draws.twin(graphed.reset, eager.reset)
     if hasattr(graphed, "commands"):
@@ -98,6 +102,7 @@ def main() -> None:
     if args.reset_poses:
         ok = ok and worst.get("reset_pose_error", float("inf")) < 1e-4  # inf: no world was reset, nothing checked
     print(json.dumps({"task": args.task, "num_envs": args.num_envs, "steps": args.steps, "randomization": preset,
+                      "evaluating": args.evaluating,
                       "resync": args.resync,
                       "graph_captured": graphed.execution.graphs is not None,
                       "step_execution": [graphed.step_execution, eager.step_execution], **worst, "ok": ok}), flush=True)

@@ -21,3 +21,19 @@ from check_graph_breaks import TASKS, break_lines, explain_step  # noqa: E402
 def test_the_post_physics_step_is_one_graph(task):
     explanation = explain_step(task, num_envs=4)
     assert (explanation.graph_count, explanation.graph_break_count) == (1, 0), "\n".join(break_lines(explanation))
+
+
+def _output_count(explanation) -> int:
+    output = next(node for node in explanation.graphs[0].graph.nodes if node.op == "output")
+    return len(output.args[0])
+
+
+@pytest.mark.parametrize("task", ["Go1", "Quadcopter", "Ant"])  # the tasks that record more metrics in test mode
+def test_test_mode_metrics_add_no_outputs_to_the_step(task):
+    # Metrics are copied into buffers that exist before the step (TaskMetrics), so the test-mode step is the training
+    # step's graph with more writes, not more outputs. On the GPU, Quadcopter's captured test mode lost a fifth of
+    # its episodes, and only with its test-mode metrics recorded; their extra graph outputs were the one difference
+    # found in its compiled step (docs/PERFORMANCE.md, twentieth session).
+    training, testing = explain_step(task, num_envs=4), explain_step(task, num_envs=4, evaluating=True)
+    assert testing.graph_count == 1
+    assert _output_count(testing) == _output_count(training)

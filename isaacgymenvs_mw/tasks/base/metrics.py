@@ -46,12 +46,19 @@ SUCCESS = Metric("success", OUTCOME)
 
 class TaskMetrics:
     """The metrics a task declares (``declare``: its ``declared_metrics`` hook, read once, outside the step) and the
-    values recorded in the current step. ``evaluating``: test mode is on (``PER_STEP`` metrics are wanted)."""
+    values recorded in the current step. ``evaluating``: test mode is on (``PER_STEP`` metrics are wanted).
 
-    def __init__(self, declare: Callable[[], Sequence[Metric]]) -> None:
+    Each declared metric has one buffer for the run, made with the declarations (a device scalar, or one value per
+    env), and ``record`` copies into it: a compiled step writes its metrics into tensors that exist before it, as it
+    writes its other buffers, so recording adds no outputs to its graph, and test mode (which records more) runs the
+    same kind of captured step as training."""
+
+    def __init__(self, declare: Callable[[], Sequence[Metric]], num_envs: int, device: str | torch.device) -> None:
         self._declare = declare
+        self._num_envs, self._device = num_envs, device
         self._declared: tuple[Metric, ...] | None = None
         self._keys: frozenset[tuple[str, str]] = frozenset()
+        self._buffers: dict[tuple[str, str], torch.Tensor] = {}
         self.evaluating = False
         self.values: dict[tuple[str, str], torch.Tensor] = {}
         self._replayed: dict[tuple[str, str], torch.Tensor] = {}  # recorded while the step was captured
@@ -68,6 +75,9 @@ class TaskMetrics:
             self._keys = frozenset((m.kind, m.name) for m in declared)
             if len(self._keys) < len(declared):
                 raise ValueError(f"declared_metrics: a (name, kind) appears twice in {declared}")
+            per_env = (OUTCOME, PER_STEP)
+            self._buffers = {(m.kind, m.name): torch.zeros((self._num_envs,) if m.kind in per_env else (),
+                                                           device=self._device) for m in declared}
             self._declared = declared
         return self._keys
 
@@ -81,7 +91,7 @@ class TaskMetrics:
         declarations are read here the first time, never inside the compiled step.
 
         ``replay``: the step replays captured CUDA graphs, which run no Python and record nothing; they rewrite in
-        place the tensors recorded while the step was captured (``hold_for_replays``), so those are its values."""
+        place the buffers recorded into while the step was captured (``hold_for_replays``), so those are its values."""
         self._declared_keys()
         self.values = dict(self._replayed) if replay else {}
 
@@ -94,7 +104,9 @@ class TaskMetrics:
         key = (metric.kind, metric.name)
         if key not in self._declared_keys():
             raise ValueError(f"metrics.record: {metric} is not among the task's declared_metrics()")
-        self.values[key] = value
+        buffer = self._buffers[key]
+        buffer.copy_(value)
+        self.values[key] = buffer
 
     def record_successes(self, succeeded: torch.Tensor) -> None:
         """VecTask's SUCCESS_RATE and SUCCESS of the episodes that end in this step, ``succeeded`` ((num_envs,) bool)

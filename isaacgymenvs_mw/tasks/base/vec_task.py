@@ -118,7 +118,7 @@ class VecTask:
         self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim),
                                shared_sequence=type(self).post_physics_step is VecTask.post_physics_step)
         self.extras: dict[str, Any] = {}
-        self.metrics = TaskMetrics(self.declared_metrics)  # recorded by the task's step, read by learning/
+        self.metrics = TaskMetrics(self.declared_metrics, n, dev)  # recorded by the task's step, read by learning/
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
         images = None if self.observations.images is None else self._observe_images
         self.execution = StepExecution(
