@@ -16,6 +16,7 @@
 #             consecutive_successes >= 10 within 30 minutes)
 #   shadow_hand  ShadowHand alone, seeds 1 and 2 (the issue's two seeds on two GPUs)
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
+#   balance_best  the same keeping each job's best checkpoint (save_best=True), which is then evaluated too
 #   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
 #   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
 #   allegro_phys  AllegroHand, seeds 1 and 2, with Isaac Lab's MuJoCo Warp contact settings: 240 Hz physics (its 2
@@ -53,6 +54,7 @@ case "$name" in
   shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=${SEEDS:-1,2} ;;
   shadow_hand) sweep 1800 task=ShadowHand seed=${SEEDS:-1,2} ;;
   balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
+  balance_best) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True ;;
   quad) sweep 120 task=Quadcopter seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   allegro_phys) sweep 1500 task=AllegroHand seed=${SEEDS:-1,2} task.sim.dt=0.004166666666666667 \
                 task.env.controlFrequencyInv=8 task.sim.iterations=100 ;;
@@ -62,9 +64,19 @@ case "$name" in
   camera) sweep 120 task=CartpoleCamera num_envs=4096 seed=${SEEDS:-1,2} ;;
   cabinet) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} ;;
   cabinet_lrmin) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} +train.algorithm.learning_rate_min=1e-4 ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, balance, quad, regression, camera, cabinet or cabinet_lrmin"; exit 2 ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, balance, balance_best, quad, regression, camera, cabinet or cabinet_lrmin"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
+# save_best: each job's model_best.pt in test mode as well (from a best/ folder, so that its eval.json does not replace
+# the last checkpoint's), one after another on the first of the sweep's GPUs
+gpu=${CUDA_VISIBLE_DEVICES:-0}
+for best in "$out"/sweeps/*/job*/*/*/model_best.pt; do
+  [ -f "$best" ] || continue
+  task=$(basename "$(dirname "$(dirname "$best")")"); mkdir -p "$(dirname "$best")/best"
+  cp "$best" "$(dirname "$best")/best/model_best.pt"
+  CUDA_VISIBLE_DEVICES=${gpu%%,*} python3 train.py task="$task" test=True headless=True \
+    checkpoint="$(dirname "$best")/best/model_best.pt" 2>&1 | grep '^\[eval\] {' | sed "s|^|best of $task: |"
+done
 # Every test-mode result in full (the table shows the sweep metric only): the README rows' numbers.
 python3 - "$out" <<'PY'
 import json, pathlib, sys

@@ -153,3 +153,53 @@ def test_with_several_gpus_every_rank_stops_when_any_rank_spent_the_budget(tmp_p
         results = manager.dict()
         mp.spawn(_budget_rank, args=(2, str(tmp_path / "rendezvous"), train_times, 4.0, results), nprocs=2)
         assert dict(results) == {0: spent, 1: spent}
+
+
+def test_save_best_keeps_the_saved_checkpoint_where_the_metric_was_highest(tmp_path, run_args):
+    summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=12", "train.runner.save_interval=2",
+                                  "train.runner.num_steps_per_env=16", "task.env.episodeLength_s=0.3",
+                                  "save_best=True", *run_args]))
+    run_dir = only_run_dir(tmp_path / "runs")
+    # Reference, computed here from the history: at each saved iteration, the mean episode reward over the last 10
+    # iterations that ended episodes; the best is the first highest of these.
+    history = summary["history"]
+    saved = [entry["iteration"] for entry in history if entry["iteration"] % 2 == 0]
+    means = {}
+    for iteration in saved:
+        values = [e["mean_episode_reward"] for e in history[:iteration] if e.get("mean_episode_reward") is not None]
+        if values:
+            means[iteration] = sum(values[-10:]) / len(values[-10:])
+    best = max(means, key=lambda it: (means[it], -it))
+    kept = summary["best_checkpoint"]
+    assert kept["iteration"] == best and kept["metric"] == "mean_episode_reward"
+    assert kept["value"] == pytest.approx(means[best])
+    assert (run_dir / "model_best.pt").read_bytes() == (run_dir / f"model_{best}.pt").read_bytes()
+
+
+def test_without_save_best_no_best_checkpoint_is_kept(tmp_path, run_args):
+    summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=2", *run_args]))
+    assert summary["best_checkpoint"] is None
+    assert not (only_run_dir(tmp_path / "runs") / "model_best.pt").exists()
+
+
+@pytest.mark.parametrize("metric, declared, key", [("auto", ["Episode/success"], "Episode/success"),
+                                                   ("timeout_fraction", [], "timeout_fraction")])
+def test_the_best_checkpoint_follows_the_smoothed_metric_not_the_last(tmp_path, metric, declared, key):
+    from isaacgymenvs_mw.learning.runner import BestCheckpoint
+
+    best = BestCheckpoint(tmp_path, metric, declared)
+    # 30 iterations: the metric rises to 0.9 at iteration 15, then falls; a checkpoint every 10 iterations
+    values = [min(i, 15) * 0.06 - max(0, i - 15) * 0.05 for i in range(1, 31)]
+    history = []
+    for i, value in enumerate(values, start=1):
+        history.append({"iteration": i, key: value, "mean_episode_reward": -value})
+        if i % 10 == 0:
+            checkpoint = tmp_path / f"model_{i}.pt"
+            checkpoint.write_bytes(f"weights of iteration {i}".encode())
+            best.consider(history, str(checkpoint))
+    # the trailing means of 10 iterations at 10, 20 and 30, written out: the one at 20 is the highest
+    means = {10: sum(values[0:10]) / 10, 20: sum(values[10:20]) / 10, 30: sum(values[20:30]) / 10}
+    assert max(means, key=means.get) == 20 and values[-1] < values[19]
+    assert best.summary()["iteration"] == 20 and best.summary()["metric"] == key
+    assert best.summary()["value"] == pytest.approx(means[20])
+    assert (tmp_path / "model_best.pt").read_bytes() == b"weights of iteration 20"

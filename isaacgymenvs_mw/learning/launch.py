@@ -16,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from isaacgymenvs_mw.learning.export import export_policy
 from isaacgymenvs_mw.learning.loggers import check_logger
 from isaacgymenvs_mw.learning.runner import (
+    BestCheckpoint,
     Runner,
     device_description,
     episode_metrics,
@@ -87,6 +88,8 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
         runner.log_dir = str(run_dir)
         runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
+        if cfg.get("save_best", False):
+            runner.best = BestCheckpoint(run_dir, str(cfg.get("sweep_metric", "auto")), training_metric_keys(task))
         if videos:
             _attach_video_recorder(cfg, task, run_dir / "videos")
     start_it = runner.current_learning_iteration
@@ -145,6 +148,7 @@ def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, st
         "interrupted": interrupted is not None,
         "signal": None if interrupted is None else signal.Signals(_signal_number(interrupted)).name,
         "interrupted_checkpoint": runner.interrupted_checkpoint,
+        "best_checkpoint": None if runner.best is None else runner.best.summary(),  # save_best
         "history": runner.history,
     }
 

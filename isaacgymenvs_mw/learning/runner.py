@@ -13,6 +13,7 @@ import json
 import math
 import os
 import platform
+import shutil
 import time
 from collections import deque
 from importlib import metadata
@@ -24,6 +25,7 @@ from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_tensors
 from isaacgymenvs_mw.learning.loggers import make_writer
+from isaacgymenvs_mw.learning.sweep import SMOOTHING, metric_key
 from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
@@ -84,6 +86,7 @@ class Runner(OnPolicyRunner):
         self.interrupted_checkpoint: str | None = None  # the model_<it>_interrupted.pt a stop wrote
         self.time_budget_reached = False  # learn() ended at max_train_time_s, before its last iteration
         self.last_checkpoint: str | None = None
+        self.best: BestCheckpoint | None = None  # save_best: model_best.pt follows the run's metric
         # Learner health: optimiser steps skipped for a non-finite loss or gradient, worlds whose observation or
         # reward held NaN/inf, and how often the last finite learner state was put back.
         self.skipped_steps = 0
@@ -183,6 +186,8 @@ class Runner(OnPolicyRunner):
     def _save(self, path: str) -> None:
         self.save(path)
         self.last_checkpoint = path
+        if self.best is not None:
+            self.best.consider(self.history, path)
 
     def _keep_learner_finite(self, iteration: int) -> str | None:
         """After an update: keep the learner's state when it is finite; put the last finite one back when it is not
@@ -292,6 +297,41 @@ class Runner(OnPolicyRunner):
             return {}
         keys = [k for k in self.recent[-1] if k not in ("episodes", "nonfinite_resets", "nonfinite_inputs")]
         return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
+
+
+class BestCheckpoint:
+    """``save_best``: model_best.pt in the run directory, a copy of the saved checkpoint at which the run's metric
+    (``sweep_metric``: ``auto`` is the task's first declared metric, else the episode reward), averaged over the last
+    ``SMOOTHING`` iterations that report it, was highest. Only saved checkpoints are candidates (every
+    ``save_interval`` iterations, and the last), so keeping the best costs a file copy, not a save per iteration."""
+
+    def __init__(self, run_dir: str | Path, metric: str, declared: list[str]) -> None:
+        self.path = Path(run_dir) / "model_best.pt"
+        self.metric, self.declared = metric, declared
+        self.key: str | None = None  # the metric's history key, known once the history has entries
+        self.value: float | None = None
+        self.iteration: int | None = None
+        self.source: str | None = None
+
+    def consider(self, history: list[dict], checkpoint: str) -> None:
+        """``checkpoint`` was just saved after the last iteration of ``history``: keep it if its metric is the best."""
+        if not history:
+            return
+        self.key = metric_key(history, self.metric, self.declared)
+        values = [float(r[self.key]) for r in history if r.get(self.key) is not None][-SMOOTHING:]
+        if not values:  # no episode has ended yet
+            return
+        value = sum(values) / len(values)
+        if self.value is None or value > self.value:
+            shutil.copyfile(checkpoint, self.path)
+            self.value, self.iteration, self.source = value, int(history[-1]["iteration"]), checkpoint
+
+    def summary(self) -> dict | None:
+        """summary.json's "best_checkpoint" (None before any checkpoint had the metric)."""
+        if self.value is None:
+            return None
+        return {"path": str(self.path), "iteration": self.iteration, "metric": self.key, "value": self.value,
+                "copy_of": self.source}
 
 
 class _FirstCollectProgress:

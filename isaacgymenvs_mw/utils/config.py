@@ -148,7 +148,7 @@ def boolean(value, key: str) -> bool:
 
 # Run-level keys of cfg/config.yaml and what each takes; num_envs and max_iterations may also be '' (YAML default).
 _RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "multi_gpu", "capture_video", "verbose",
-                 "sweep_eval")
+                 "sweep_eval", "save_best")
 _RUN_WHOLE_NUMBERS = {"num_envs": 1, "max_iterations": 0, "seed": -1, "graphics_device_id": -1,
                       "capture_video_freq": 1, "capture_video_len": 1}
 _RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device", "sweep_metric")
