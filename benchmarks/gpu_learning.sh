@@ -17,6 +17,7 @@
 #   shadow_hand  ShadowHand alone, seeds 1 and 2 (the two seeds on two GPUs)
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
 #   balance_best  the same keeping each job's best checkpoint (save_best=True), which is then evaluated too
+#   balance_ent   balance_best with an entropy bonus of 0.005 (the recipe has none; its action noise collapses)
 #   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
 #   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
 #   allegro_phys  AllegroHand, seeds 1 and 2, with Isaac Lab's MuJoCo Warp contact settings: 240 Hz physics (its 2
@@ -55,6 +56,8 @@ case "$name" in
   shadow_hand) sweep 1800 task=ShadowHand seed=${SEEDS:-1,2} ;;
   balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   balance_best) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True ;;
+  balance_ent) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True \
+               train.algorithm.entropy_coef=0.005 ;;
   quad) sweep 120 task=Quadcopter seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   allegro_phys) sweep 1500 task=AllegroHand seed=${SEEDS:-1,2} task.sim.dt=0.004166666666666667 \
                 task.env.controlFrequencyInv=8 task.sim.iterations=100 ;;
@@ -64,7 +67,7 @@ case "$name" in
   camera) sweep 120 task=CartpoleCamera num_envs=4096 seed=${SEEDS:-1,2} ;;
   cabinet) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} ;;
   cabinet_lrmin) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} +train.algorithm.learning_rate_min=1e-4 ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, balance, balance_best, quad, regression, camera, cabinet or cabinet_lrmin"; exit 2 ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, balance, balance_best, balance_ent, quad, regression, camera, cabinet or cabinet_lrmin"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
 # save_best: each job's model_best.pt in test mode as well (from a best/ folder, so that its eval.json does not replace
