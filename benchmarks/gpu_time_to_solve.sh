@@ -4,8 +4,9 @@
 #   go1      Go1, 4096 envs in total, 400 iterations, a checkpoint every 25 iterations; afterwards every checkpoint
 #            is evaluated in test mode (1024 episodes, the four GPUs side by side). Solved: timeout_fraction >= 0.97
 #            and lin_vel_tracking_error <= 0.25 m/s.
-#   allegro  AllegroHand, 8192 envs in total, BUDGET_S seconds of training (default 1500, max_train_time_s). Solved at 5 and at 10:
-#            IGE's consecutive_successes, the task's own running metric, read from summary.json's history.
+#   allegro  AllegroHand, 8192 envs in total, BUDGET_S seconds of training (max_train_time_s, default 1500). Solved
+#            at 5 and at 10: IGE's consecutive_successes, the task's own running metric, read from summary.json's
+#            history.
 # The time is from process start: start-up (summary wall time minus training time) plus the training time at the
 # first checkpoint or iteration that meets the criterion.
 # Usage: bash benchmarks/gpu_time_to_solve.sh go1|allegro OUTDIR [GPU counts, default 1,2,4]
