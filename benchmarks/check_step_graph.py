@@ -143,20 +143,22 @@ def task_tensors(task) -> dict[str, torch.Tensor]:
             for name, value in vars(obj).items() if isinstance(value, torch.Tensor)}
 
 
+def mocap_tensors(task) -> dict[str, torch.Tensor]:
+    """The mocap poses (goal markers): state the simulator's ``save_state`` does not carry."""
+    return {"sim.mocap_pos": task.sim.mocap_pos, "sim.mocap_quat": task.sim.mocap_quat}
+
+
 def sim_tensors(task) -> dict[str, torch.Tensor]:
-    """The simulator's state carried from one physics step to the next, and the mocap poses (goal markers)."""
-    sim = task.sim
-    return {**{f"sim.{name}": view for name, view in sim.save_state().items()},
-            "sim.mocap_pos": sim.mocap_pos, "sim.mocap_quat": sim.mocap_quat}
+    """The simulator's state carried from one physics step to the next, and the mocap poses."""
+    return {**{f"sim.{name}": view for name, view in task.sim.save_state().items()}, **mocap_tensors(task)}
 
 
 def copy_state(source, target) -> None:
     """``target`` (the eager twin) gets ``source``'s whole state, in place (the shipped twin's tensors, which its
     captured graphs read, are only read)."""
     target.sim.load_state(source.sim.save_state())
-    theirs = {**task_tensors(target), "sim.mocap_pos": target.sim.mocap_pos, "sim.mocap_quat": target.sim.mocap_quat}
-    for name, value in {**task_tensors(source), "sim.mocap_pos": source.sim.mocap_pos,
-                        "sim.mocap_quat": source.sim.mocap_quat}.items():
+    theirs = {**task_tensors(target), **mocap_tensors(target)}
+    for name, value in {**task_tensors(source), **mocap_tensors(source)}.items():
         mine = theirs.get(name)
         if mine is not None and mine.shape == value.shape and mine.dtype == value.dtype and mine is not value:
             mine.copy_(value)

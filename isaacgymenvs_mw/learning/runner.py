@@ -25,7 +25,7 @@ from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_tensors
 from isaacgymenvs_mw.learning.loggers import make_writer
-from isaacgymenvs_mw.learning.sweep import SMOOTHING, metric_key
+from isaacgymenvs_mw.learning.sweep import SMOOTHING, metric_key, smoothed
 from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
@@ -321,7 +321,7 @@ class BestCheckpoint:
         values = [float(r[self.key]) for r in history if r.get(self.key) is not None][-SMOOTHING:]
         if not values:  # no episode has ended yet
             return
-        value = sum(values) / len(values)
+        value = smoothed(values)[-1]  # the sweep's trailing mean, as its "best" column reads it
         if self.value is None or value > self.value:
             shutil.copyfile(checkpoint, self.path)
             self.value, self.iteration, self.source = value, int(history[-1]["iteration"]), checkpoint
