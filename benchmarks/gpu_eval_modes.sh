@@ -8,7 +8,9 @@ task=$1; checkpoint=$2; envs=${3:-}
 for mode in shipped "+task.sim.captureStep=False" "+task.sim.captureStep=False +task.sim.compileStep=False"; do
   extra=""; [ "$mode" != shipped ] && extra=$mode
   # shellcheck disable=SC2086  # $extra holds zero, one or two overrides
-  line=$(python3 train.py task="$task" test=True checkpoint="$checkpoint" headless=True ${envs:+num_envs=$envs} \
-         $extra 2>&1 | grep '^\[eval\] {')
-  echo "$mode: ${line:-no eval line}"
+  output=$(python3 train.py task="$task" test=True checkpoint="$checkpoint" headless=True ${envs:+num_envs=$envs} \
+           $extra 2>&1)
+  line=$(grep '^\[eval\] {' <<< "$output")
+  # no eval line: the run failed, and its last lines say why
+  echo "$mode: ${line:-no eval line; the run ended with:$'\n'$(tail -n 15 <<< "$output")}"
 done

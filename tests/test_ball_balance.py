@@ -226,3 +226,20 @@ def test_an_asset_without_the_leg_sensors_is_a_one_line_error_naming_the_key(tmp
     with pytest.raises(ConfigError, match=r"^task\.env\.legTorqueSensors: 'leg2_torq' is not a sensor of the model; "
                                           r"its sensors: \['leg0_force', [^\n]*\]$"):
         make("BallBalance", num_envs=1, overrides=("task.env.legTorqueSensors=[leg0_torque,leg1_torque,leg2_torq]",))
+
+
+def test_the_best_checkpoint_follows_the_fraction_of_episodes_that_keep_the_ball_not_the_reward(tmp_path):
+    from isaacgymenvs_mw.learning.runner import BestCheckpoint
+    from isaacgymenvs_mw.learning.vecenv import training_metric_keys
+
+    env = make("BallBalance", num_envs=1)
+    best = BestCheckpoint(tmp_path, "auto", training_metric_keys(env))  # sweep_metric=auto, as shipped
+    # two saved checkpoints: the second has the higher reward but keeps the ball in fewer episodes
+    history = [{"iteration": 1, "timeout_fraction": 0.98, "mean_episode_reward": 300.0}]
+    (tmp_path / "model_1.pt").write_bytes(b"iteration 1")
+    best.consider(history, str(tmp_path / "model_1.pt"))
+    history.append({"iteration": 2, "timeout_fraction": 0.0, "mean_episode_reward": 1000.0})
+    (tmp_path / "model_2.pt").write_bytes(b"iteration 2")
+    best.consider(history, str(tmp_path / "model_2.pt"))
+    assert best.summary()["metric"] == "timeout_fraction" and best.iteration == 1
+    assert (tmp_path / "model_best.pt").read_bytes() == b"iteration 1"

@@ -158,7 +158,7 @@ def test_with_several_gpus_every_rank_stops_when_any_rank_spent_the_budget(tmp_p
 def test_save_best_keeps_the_saved_checkpoint_where_the_metric_was_highest(tmp_path, run_args):
     summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=12", "train.runner.save_interval=2",
                                   "train.runner.num_steps_per_env=16", "task.env.episodeLength_s=0.3",
-                                  "save_best=True", *run_args]))
+                                  *run_args]))  # save_best is on by default
     run_dir = only_run_dir(tmp_path / "runs")
     # Reference, computed here from the history: at each saved iteration, the mean episode reward over the last 10
     # iterations that ended episodes; the best is the first highest of these.
@@ -177,7 +177,7 @@ def test_save_best_keeps_the_saved_checkpoint_where_the_metric_was_highest(tmp_p
 
 
 def test_without_save_best_no_best_checkpoint_is_kept(tmp_path, run_args):
-    summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=2", *run_args]))
+    summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=2", "save_best=False", *run_args]))
     assert summary["best_checkpoint"] is None
     assert not (only_run_dir(tmp_path / "runs") / "model_best.pt").exists()
 

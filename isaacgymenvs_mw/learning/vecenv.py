@@ -17,8 +17,10 @@ METRIC_GROUP = "Episode/"
 
 
 def training_metric_keys(task: VecTask) -> list[str]:
-    """The history keys of the metrics the task declares for training (EPISODE_SUM and RUNNING), in their order."""
-    return [METRIC_GROUP + m.name for m in task.metrics.declared if m.kind in (EPISODE_SUM, RUNNING)]
+    """The history keys of the metrics the task declares for training (EPISODE_SUM and RUNNING), in their order,
+    after the task's ``primary_metric`` when it names one: the first is what ``sweep_metric=auto`` follows."""
+    declared = [METRIC_GROUP + m.name for m in task.metrics.declared if m.kind in (EPISODE_SUM, RUNNING)]
+    return ([task.primary_metric] if task.primary_metric else []) + declared
 
 
 class EpisodeStats:

@@ -43,6 +43,9 @@ class BallBalance(VecTask):
     """Observation (24, IGE's layout): knee angles, knee speeds, ball position, ball linear velocity (world frame,
     which is the env's), then the three legs' sensor x forces, x torques, y torques, z torques, each / 20. Actions
     (3): knee target rates."""
+    # done well when its episodes last to the time limit (the ball kept on the tray): sweeps and save_best follow it
+    primary_metric = "timeout_fraction"
+
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):

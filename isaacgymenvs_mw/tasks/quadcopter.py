@@ -45,6 +45,9 @@ REACHED_TARGET = Metric("reached_target", OUTCOME)     # test mode: 1 for an epi
 class Quadcopter(VecTask):
     """Observation (21): target offset / 3, root quaternion (w, x, y, z), linear velocity / 2, angular velocity / π
     (world frame), the 8 rotor joint angles. Actions (12): 8 joint target rates, 4 thrust rates."""
+    # done well when its episodes last to the time limit (no IGE failure): sweeps and save_best follow it
+    primary_metric = "timeout_fraction"
+
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
