@@ -43,7 +43,7 @@ train() {
 
 evaluate() {
   run=$(latest_run)
-  ckpt=$(ls -t "$run"model_*.pt 2>/dev/null | head -1)
+  ckpt=$(ls -t "$run"model_[0-9]*.pt 2>/dev/null | head -1)
   [ -n "$ckpt" ] || { echo "no checkpoint under $runs/$task"; return 1; }
   timeout 300 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 "$@" 2>&1 \
     | tee "$out/$task.eval.log" | grep "\[eval\]" | cut -c1-600

@@ -15,6 +15,10 @@
 #   shadow    ShadowHand, seeds 1 and 2, and ShadowHandOpenAI_FF, seeds 1 and 2, 1800 s (target: IGE's
 #             consecutive_successes >= 10 within 30 minutes)
 #   shadow_hand  ShadowHand alone, seeds 1 and 2 (the issue's two seeds on two GPUs)
+#   shadow_ent, shadow_logstd, shadow_stdmin, shadow_bounds  ShadowHand, seeds 1 and 2, 900 s, against its plateau
+#             (the action noise collapses and pins the adaptive learning rate at its floor): Isaac Lab's rsl_rl entropy
+#             bonus 0.005; the noise learned as log-std (rl_games' form); the noise floored at 0.1; a bounds loss of
+#             0.01 (the action means sit far outside the clipped range)
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
 #   balance_best  the same keeping each job's best checkpoint (save_best=True), which is then evaluated too
 #   balance_ent   balance_best with an entropy bonus of 0.005 (the recipe has none; its action noise collapses)
@@ -27,6 +31,8 @@
 #   camera    CartpoleCamera at 4096 envs, seeds 1 and 2 (its README row)
 #   cabinet   FrankaCabinet, seeds 1, 2, 3 and 42 (the README row's seed), shipped (seed 1 never opened the drawer)
 #   cabinet_lrmin  the same with a learning-rate floor of 1e-4 (seed 1's adaptive rate sat at 1e-5 from iteration 16)
+#   cabinet_success  FrankaCabinet, seeds 1 and 42, with a success reward of 100 and of 400 (runs opened the drawer in
+#             every episode, then drifted to holding it short of success: finishing paid no more than holding)
 # SEEDS=1,2 and BUDGET=600 (training seconds) replace a sweep's seeds and budget; CUDA_VISIBLE_DEVICES=2,3 keeps it
 # to those GPUs, so two sweeps can share a 4-GPU machine.
 # A budget over one device call (10 minutes) runs detached and is waited for in the next call:
@@ -54,6 +60,10 @@ case "$name" in
   rgb) sweep 1200 task=FrankaCubeLiftRGB,FrankaCubeLiftDepth seed=${SEEDS:-1,2} ;;
   shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=${SEEDS:-1,2} ;;
   shadow_hand) sweep 1800 task=ShadowHand seed=${SEEDS:-1,2} ;;
+  shadow_ent) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} train.algorithm.entropy_coef=0.005 ;;
+  shadow_logstd) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} train.actor.distribution_cfg.std_type=log ;;
+  shadow_stdmin) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} '+train.actor.distribution_cfg.std_range=[0.1,10.0]' ;;
+  shadow_bounds) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} train.algorithm.bounds_loss_coef=0.01 ;;
   balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   balance_best) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True ;;
   balance_ent) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True \
@@ -67,11 +77,12 @@ case "$name" in
   camera) sweep 120 task=CartpoleCamera num_envs=4096 seed=${SEEDS:-1,2} ;;
   cabinet) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} ;;
   cabinet_lrmin) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,2,3,42} +train.algorithm.learning_rate_min=1e-4 ;;
-  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, balance, balance_best, balance_ent, quad, regression, camera, cabinet or cabinet_lrmin"; exit 2 ;;
+  cabinet_success) sweep 300 task=FrankaCabinet seed=${SEEDS:-1,42} task.env.successRewardScale=100,400 ;;
+  *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, shadow_ent, shadow_logstd, shadow_stdmin, shadow_bounds, balance, balance_best, balance_ent, quad, regression, camera, cabinet, cabinet_lrmin or cabinet_success"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
-# save_best: each job's model_best.pt in test mode as well (from a best/ folder, so that its eval.json does not replace
-# the last checkpoint's), one after another on the first of the sweep's GPUs
+# save_best (on by default): each job's model_best.pt in test mode as well (from a best/ folder, so that its eval.json
+# does not replace the last checkpoint's), one after another on the first of the sweep's GPUs
 gpu=${CUDA_VISIBLE_DEVICES:-0}
 for best in "$out"/sweeps/*/job*/*/*/model_best.pt; do
   [ -f "$best" ] || continue

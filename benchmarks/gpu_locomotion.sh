@@ -20,7 +20,7 @@ for task in ${TASKS:-Ant Humanoid}; do
   grep -E "^\[it +(1|50|100|200|300|400|500|600|700|800|900|1000)/|compiled|\[train\] done|Error" "$out/$task.log" \
     | cut -c1-150
   run=$(ls -td "$out"/runs/$task/*/ 2>/dev/null | head -1)
-  ckpt=$(ls -t "$run"model_*.pt 2>/dev/null | head -1)
+  ckpt=$(ls -t "$run"model_[0-9]*.pt 2>/dev/null | head -1)
   [ -n "$ckpt" ] || continue
   python3 -c "import json; s = json.load(open('${run}summary.json')); print('$task', {k: s[k] for k in
     ('wall_time_s', 'train_time_s', 'env_steps', 'env_steps_per_s', 'mean_episode_reward', 'mean_episode_length')})"

@@ -14,7 +14,7 @@ rc=$?
 t1=$(date +%s.%N)
 grep -E "^\[it +(1|2|100|200|300|400|500)/|compiled|\[train\] done|Error" "$out/$task.$cache.log" | cut -c1-140
 python3 -c "print('$task $cache: train.py rc=$rc, process wall %.1f s' % ($t1 - $t0))"
-ckpt=$(ls -t "$out"/runs/"$task"/*/model_*.pt 2>/dev/null | head -1)
+ckpt=$(ls -t "$out"/runs/"$task"/*/model_[0-9]*.pt 2>/dev/null | head -1)
 [ -n "$ckpt" ] || exit 1
 timeout 120 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 2>&1 | grep "\[eval\] {" | tee "$out/$task.$cache.eval.txt" | cut -c1-260
 cp "$(dirname "$ckpt")/summary.json" "$out/$task.$cache.summary.json"

@@ -27,7 +27,7 @@ train_and_test() {  # TASK SEED
   timeout --preserve-status 560 python3 train.py task="$1" seed="$2" headless=True runs_dir="$out/runs.$1.$2" \
     > "$out/$1.seed$2.log" 2>&1
   echo "$1 seed $2: rc=$? $(grep -E '^\[train\] done|skipped|restored|replaced|blew up|not finite' "$out/$1.seed$2.log" | cut -c1-200)"
-  ckpt=$(ls -t "$out"/runs."$1"."$2"/"$1"/*/model_*.pt 2>/dev/null | head -1)
+  ckpt=$(ls -t "$out"/runs."$1"."$2"/"$1"/*/model_[0-9]*.pt 2>/dev/null | head -1)
   [ -n "$ckpt" ] && python3 -c "
 import json, math, torch
 s = json.load(open('$(dirname "$ckpt")/summary.json'))

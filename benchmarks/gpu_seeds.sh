@@ -22,7 +22,7 @@ wait
 i=0
 for args in "$@"; do
   i=$((i + 1))
-  ckpt=$(ls -t "$out"/runs$i/*/*/model_*.pt 2>/dev/null | head -1)
+  ckpt=$(ls -t "$out"/runs$i/*/*/model_[0-9]*.pt 2>/dev/null | head -1)
   if [ -z "$ckpt" ]; then echo "no checkpoint" > "$out/eval$i.txt"; tail -3 "$out/train$i.log" >> "$out/eval$i.txt"; continue; fi
   cp "$(dirname "$ckpt")/summary.json" "$out/summary$i.json"
   # shellcheck disable=SC2086

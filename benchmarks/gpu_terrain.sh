@@ -54,7 +54,7 @@ print(json.dumps({"task": cfg.task.name, "top_level": top, "iterations": len(lev
                   "last_iteration_at_process_s": level and round(level[-1].wall_time - t0, 1),
                   "median_env_steps_per_s": sorted(fps)[len(fps) // 2] if fps else None}))
 PY
-ckpt=$(ls -t "$run_dir"/model_*.pt 2>/dev/null | head -1)
+ckpt=$(ls -t "$run_dir"/model_[0-9]*.pt 2>/dev/null | head -1)
 [ -n "$ckpt" ] && timeout 300 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=1024 \
   task.env.terrain.curriculum=False ${OVERRIDES:-} 2>&1 | grep "\[eval\] {" | tee "$out/$task.$cache.eval.txt" | cut -c1-1500
 if [ "${THROUGHPUT:-0}" = 1 ]; then

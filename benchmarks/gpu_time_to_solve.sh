@@ -2,8 +2,8 @@
 # On a machine with 4 GPUs: the time to a solved task at one total number of envs split over 1, 2 and 4 GPUs of one
 # host (torchrun, one simulator per GPU, the total envs divided among them).
 #   go1      Go1, 4096 envs in total, 400 iterations, a checkpoint every 25 iterations; afterwards every checkpoint
-#            is evaluated in test mode (1024 episodes, the four GPUs side by side). Solved: timeout_fraction >= 0.97
-#            and lin_vel_tracking_error <= 0.25 m/s.
+#            is evaluated in test mode in iteration order (1024 episodes, the four GPUs side by side) until one
+#            meets the criterion. Solved: timeout_fraction >= 0.97 and lin_vel_tracking_error <= 0.25 m/s.
 #   allegro  AllegroHand, 8192 envs in total, BUDGET_S seconds of training (max_train_time_s, default 1500). Solved
 #            at 5 and at 10: IGE's consecutive_successes, the task's own running metric, read from summary.json's
 #            history.
@@ -19,6 +19,19 @@ case "$name" in
   allegro) task=AllegroHand; total=8192; train_args=(max_iterations=100000 max_train_time_s="${BUDGET_S:-1500}") ;;
   *) echo "unknown run '$name': go1 or allegro"; exit 2 ;;
 esac
+# Go1's criterion, read by the early stop below and by the table at the end
+export SOLVED_TIMEOUT_FRACTION=0.97 SOLVED_TRACKING_ERROR=0.25
+go1_solved() {  # EVAL_LOG...: true when one of these test-mode evaluations meets the criterion
+  python3 - "$@" <<'PY'
+import json, os, sys
+def solved(path):
+    lines = [x for x in open(path) if x.startswith("[eval] {")]
+    e = json.loads(lines[-1][len("[eval] "):]) if lines else {}
+    return (e.get("timeout_fraction", 0) >= float(os.environ["SOLVED_TIMEOUT_FRACTION"])
+            and e.get("lin_vel_tracking_error", 1e9) <= float(os.environ["SOLVED_TRACKING_ERROR"]))
+sys.exit(0 if any(solved(p) for p in sys.argv[1:]) else 1)
+PY
+}
 for k in ${counts//,/ }; do
   run="$out/$task.g$k"
   launch=(python3 train.py)
@@ -27,12 +40,13 @@ for k in ${counts//,/ }; do
   timeout --preserve-status -s TERM $(( ${BUDGET_S:-1500} + 600 )) "${launch[@]}" task=$task headless=True \
     num_envs=$((total / k)) runs_dir="$run" "${train_args[@]}" > "$run.log" 2>&1
   echo "$task on $k GPU(s): exit $?" >> "$out/exits.txt"
-  if [ "$name" = go1 ]; then  # every checkpoint in test mode, four at once
-    i=0
-    for ckpt in "$run"/"$task"/*/model_*.pt; do
-      CUDA_VISIBLE_DEVICES=$((i % 4)) python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
+  if [ "$name" = go1 ]; then  # the checkpoints in test mode in iteration order, four at once, until one solves it
+    batch=()
+    for ckpt in $(ls "$run"/"$task"/*/model_[0-9]*.pt | sort -V); do
+      CUDA_VISIBLE_DEVICES=${#batch[@]} python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
         num_envs=1024 > "${ckpt%.pt}.eval.log" 2>&1 &
-      i=$((i + 1)); [ $((i % 4)) = 0 ] && wait
+      batch+=("${ckpt%.pt}.eval.log")
+      if [ ${#batch[@]} = 4 ]; then wait; go1_solved "${batch[@]}" && break; batch=(); fi
     done
     wait
   fi
@@ -53,14 +67,15 @@ for k in counts.split(","):
            "start_up_s": round(start_up, 1), "env_steps_per_s": round(s["env_steps_per_s"])}
     if name == "go1":
         solved = None
-        for ev in sorted(glob.glob(os.path.join(os.path.dirname(runs[-1]), "model_*.eval.log")),
+        for ev in sorted(glob.glob(os.path.join(os.path.dirname(runs[-1]), "model_[0-9]*.eval.log")),
                          key=lambda p: int(re.search(r"model_(\d+)", p).group(1))):
             it = int(re.search(r"model_(\d+)", ev).group(1))
             line = [x for x in open(ev) if x.startswith("[eval] {")]
             if not line or it not in at:
                 continue
             e = json.loads(line[-1][len("[eval] "):])
-            if e["timeout_fraction"] >= 0.97 and e["lin_vel_tracking_error"] <= 0.25:
+            if (e["timeout_fraction"] >= float(os.environ["SOLVED_TIMEOUT_FRACTION"])
+                    and e["lin_vel_tracking_error"] <= float(os.environ["SOLVED_TRACKING_ERROR"])):
                 solved = {"iteration": it, "seconds_from_start": round(start_up + at[it]["time_s"], 1),
                           "timeout_fraction": e["timeout_fraction"], "tracking_error": e["lin_vel_tracking_error"]}
                 break

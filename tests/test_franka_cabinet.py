@@ -174,3 +174,20 @@ def test_bad_drawer_and_start_pose_are_one_line_errors_naming_the_key(override, 
     with pytest.raises(ConfigError, match=message) as err:
         make("FrankaCabinet", num_envs=1, sim_device="cpu", rl_device="cpu", overrides=[override])
     assert "\n" not in str(err.value)
+
+
+def test_the_success_term_pays_its_scale_once_on_the_step_the_drawer_passes_the_open_distance():
+    env = make("FrankaCabinet", num_envs=2, sim_device="cpu", rl_device="cpu", seed=0,
+               overrides=("task.env.successRewardScale=100",))
+    env.reset()
+    drawer = env.cabinet.dof_pos.clone()
+    drawer[:, 0] = torch.tensor([0.395, 0.385])  # past openDistance (0.39 m) in env 0 only
+    env.sim.write_state(torch.ones(2, dtype=torch.bool), dof_pos=drawer, dof_vel=torch.zeros_like(drawer),
+                        asset="cabinet")
+    _, _, done, extras = env.step(torch.zeros(2, 8))
+    assert done.tolist() == [1, 0]
+    # env 0's ended episode earned the term's scale x 1 once; env 1's running episode has earned nothing from it
+    assert extras["episode_terms"]["success"].item() == pytest.approx(100.0)
+    assert env.rewards.episode_sums[1, env.rewards.names.index("success")].item() == 0.0
+    # shipped: IGE's reward, without the term
+    assert "success" not in make("FrankaCabinet", num_envs=1, sim_device="cpu", rl_device="cpu").rewards.names

@@ -190,7 +190,9 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
         return sorted("events" if p.name.startswith("events.out.tfevents") else re.sub(r"\d+", "N", p.name)
                       for p in d.iterdir())
 
-    assert layout(second_dir) == layout(first_dir) == ["config.yaml", "events", "model_N.pt", "summary.json"]
+    # (model_best.pt: save_best, on by default)
+    assert layout(second_dir) == layout(first_dir) == ["config.yaml", "events", "model_N.pt", "model_best.pt",
+                                                       "summary.json"]
     assert (second_dir / "model_5.pt").is_file() and not (second_dir / "model_3.pt").exists()
     summary = json.loads((second_dir / "summary.json").read_text())
     assert summary["final_iteration"] == 5 and summary["iterations"] == 2

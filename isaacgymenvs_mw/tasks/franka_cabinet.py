@@ -30,7 +30,7 @@ _NUMBER_KEYS = ("actionScale", "fingerSpeedScale", "dofVelocityScale", "startDof
 REWARD_SCALE_KEYS = {"handle_distance": "distRewardScale", "alignment": "rotRewardScale",
                      "around_handle": "aroundHandleRewardScale", "open": "openRewardScale",
                      "finger_distance": "fingerDistRewardScale", "open_bonus": "openBonusScale",
-                     "action": "actionPenaltyScale"}
+                     "success": "successRewardScale", "action": "actionPenaltyScale"}
 
 
 class FrankaCabinet(VecTask):
@@ -136,6 +136,10 @@ class FrankaCabinet(VecTask):
     def _reward_open_bonus(self) -> torch.Tensor:
         # IsaacGymEnvs' bonuses for passing 0.01 m, 0.2 m and 0.39 m of opening
         return open_bonus(self.drawer_pos(), self.around)
+
+    def _reward_success(self) -> torch.Tensor:
+        # 1 on the step the drawer passes openDistance and the episode ends (IGE has no such term: scale 0)
+        return self.success_buf.float()
 
     def _reward_action(self) -> torch.Tensor:
         # squared size of the action (a penalty: its scale is subtracted)
