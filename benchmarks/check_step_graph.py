@@ -106,8 +106,9 @@ def main() -> None:
     # GPU contact physics is not bit-deterministic, so observations of the two runs drift apart over the steps
     # (reported); rewards, resets and the task's tensors are what must agree, beyond what two eager steps differ by.
     captured = graphed.execution.graphs is not None or not device.startswith("cuda")
+    # beyond the floor: rewards and reset mismatches within 10 times what the eager twins differ by (none without it)
     ok = (captured and worst["rew"] < max(1e-3, 10.0 * floor["rew"])
-          and (worst["reset_mismatches"] == 0 or floor["reset_mismatches"] > 0)
+          and worst["reset_mismatches"] <= 10 * floor["reset_mismatches"]
           and not worst["metric_mismatches"]
           and not [name for name in worst["state_mismatches"] if name not in floor["state_mismatches"]])
     if args.reset_poses:

@@ -20,7 +20,7 @@
 #             bonus 0.005; the noise learned as log-std (rl_games' form); the noise floored at 0.1; a bounds loss of
 #             0.01 (the action means sit far outside the clipped range)
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
-#   balance_best  the same keeping each job's best checkpoint (save_best=True), which is then evaluated too
+#   balance_best  the same, naming save_best=True (now the default): the sweep evaluates each job's best checkpoint too
 #   balance_ent   balance_best with an entropy bonus of 0.005 (the recipe has none; its action noise collapses)
 #   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
 #   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
@@ -81,22 +81,12 @@ case "$name" in
   *) echo "unknown sweep '$name': lift, lift_novn, lift_asym, stack, stack_vn, stack_osc, allegro, allegro_vn, allegro_phys, rgb, shadow, shadow_hand, shadow_ent, shadow_logstd, shadow_stdmin, shadow_bounds, balance, balance_best, balance_ent, quad, regression, camera, cabinet, cabinet_lrmin or cabinet_success"; exit 2 ;;
 esac
 cat "$out"/sweeps/*/sweep.md
-# save_best (on by default): each job's model_best.pt in test mode as well (from a best/ folder, so that its eval.json
-# does not replace the last checkpoint's), one after another on the first of the sweep's GPUs
-gpu=${CUDA_VISIBLE_DEVICES:-0}
-for best in "$out"/sweeps/*/job*/*/*/model_best.pt; do
-  [ -f "$best" ] || continue
-  task=$(basename "$(dirname "$(dirname "$best")")"); mkdir -p "$(dirname "$best")/best"
-  cp "$best" "$(dirname "$best")/best/model_best.pt"
-  CUDA_VISIBLE_DEVICES=${gpu%%,*} python3 train.py task="$task" test=True headless=True \
-    checkpoint="$(dirname "$best")/best/model_best.pt" 2>&1 | grep '^\[eval\] {' | sed "s|^|best of $task: |"
-done
 # Every test-mode result in full (the table shows the sweep metric only): the README rows' numbers.
 python3 - "$out" <<'PY'
 import json, pathlib, sys
-for path in sorted(pathlib.Path(sys.argv[1]).glob("sweeps/*/job*/*/*/eval.json")):
+for path in sorted(pathlib.Path(sys.argv[1]).glob("sweeps/*/job*/*/*/eval*.json")):  # last, best
     result = json.loads(path.read_text())
-    print(path.parts[-5], {k: round(v, 4) if isinstance(v, float) else v for k, v in result.items()
+    print(path.parts[-5], path.name, {k: round(v, 4) if isinstance(v, float) else v for k, v in result.items()
                            if isinstance(v, (int, float)) and k != "num_envs"})
 PY
 touch "$out/done"

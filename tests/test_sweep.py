@@ -88,6 +88,11 @@ def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(t
         evaluation = json.loads((summary_path.parent / "eval.json").read_text())
         assert evaluation["checkpoint"] == str(summary_path.parent / "model_3.pt")
         assert row["test"] == pytest.approx(evaluation["mean_episode_reward"])
+        # then the best checkpoint (save_best, on by default), into its own file beside the last one's
+        best = json.loads((summary_path.parent / "eval_best.json").read_text())
+        assert best["checkpoint"] == str(summary_path.parent / "model_best.pt")
+        assert row["test_best"] == pytest.approx(best["mean_episode_reward"])
+        assert (summary_path.parent / "exported_best" / "policy.onnx").is_file()
     assert (sweep_dir / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     markdown = (sweep_dir / "sweep.md").read_text()
     assert markdown.count("| seed=") == 2 and markdown in out.stdout

@@ -25,6 +25,7 @@ from isaacgymenvs_mw.learning.runner import (
     rsl_rl_config,
     write_json,
 )
+from isaacgymenvs_mw.learning.sweep import evaluation_outputs
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
 from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, time_budget, to_dict
@@ -61,17 +62,17 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     videos = cfg.get("capture_video", False) and is_main
 
     if cfg.test:
+        eval_path, exported, videos_dir = evaluation_outputs(checkpoint)
         if videos:
-            _attach_video_recorder(cfg, task, checkpoint.parent / "videos_eval")
+            _attach_video_recorder(cfg, task, videos_dir)
         runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
         load_checkpoint(runner, checkpoint, task, saved)
         policy = runner.get_inference_policy(device=task.rl_device)
-        onnx_path, jit_path = export_policy(runner, checkpoint.parent / "exported", task=task)
+        onnx_path, jit_path = export_policy(runner, exported, task=task)
         print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
         result = evaluate(task, policy, task.rl_device)
         result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
                       device=device_description(task.sim_device), versions=package_versions())
-        eval_path = checkpoint.parent / "eval.json"
         write_json(eval_path, result)
         print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
         print(f"[eval] written to {eval_path}", flush=True)

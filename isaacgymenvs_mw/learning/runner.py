@@ -25,7 +25,7 @@ from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_tensors
 from isaacgymenvs_mw.learning.loggers import make_writer
-from isaacgymenvs_mw.learning.sweep import SMOOTHING, metric_key, smoothed
+from isaacgymenvs_mw.learning.sweep import BEST_CHECKPOINT, SMOOTHING, metric_key, smoothed
 from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
@@ -306,7 +306,7 @@ class BestCheckpoint:
     ``save_interval`` iterations, and the last), so keeping the best costs a file copy, not a save per iteration."""
 
     def __init__(self, run_dir: str | Path, metric: str, declared: list[str]) -> None:
-        self.path = Path(run_dir) / "model_best.pt"
+        self.path = Path(run_dir) / BEST_CHECKPOINT
         self.metric, self.declared = metric, declared
         self.key: str | None = None  # the metric's history key, known once the history has entries
         self.value: float | None = None

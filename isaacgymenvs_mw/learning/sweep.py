@@ -9,13 +9,14 @@ product, in Hydra's order). Each job is one ``train.py`` process with the job's 
 * everything is written under ``<runs_dir>/sweeps/<task>_<stamp>/``: ``job<k>/`` is the job's runs_dir and
   ``job<k>.log`` its output (no ``multirun/`` folder in the working directory);
 * with ``sweep_eval=True`` each job's last checkpoint is evaluated in test mode on the job's GPU when its training
-  ends (``train.py test=True``: eval.json beside the checkpoint, output appended to the job's log);
+  ends (``train.py test=True``: eval.json beside the checkpoint, output appended to the job's log), then its best
+  checkpoint when save_best kept one (eval_best.json);
 * when the jobs are done, ``sweep.json`` and ``sweep.md`` hold one row per job (final, best and final/best of the
-  sweep metric, its test-mode value, iterations, training time and rate) and ``sweep.png`` the metric against
+  sweep metric, its test-mode values for the last and the best checkpoint, iterations, training time and rate) and ``sweep.png`` the metric against
   training time, one line per job.
 
-The metric (run key ``sweep_metric``; ``auto``: the first metric the task declares, such as ``success``,
-``consecutive_successes`` or ``terrain_level``, else ``mean_episode_reward``) is read from each run's summary.json
+The metric (run key ``sweep_metric``; ``auto``: the task's primary metric, else the first metric it declares, such
+as ``success``, ``consecutive_successes`` or ``terrain_level``, else ``mean_episode_reward``) is read from each run's summary.json
 history, smoothed over ``SMOOTHING`` iterations that finished episodes: "final" is the smoothed value at the end,
 "best" the largest smoothed value, so that final/best <= 1 says how much of its best a run kept.
 
@@ -41,6 +42,15 @@ from isaacgymenvs_mw.utils.errors import ConfigError
 
 SMOOTHING = 10  # iterations averaged into a point of the final/best comparison
 METRIC_PREFIX = "Episode/"  # where a task's declared metrics live in a run's history (learning/vecenv.py)
+BEST_CHECKPOINT = "model_best.pt"  # save_best's copy of the best saved checkpoint, in the run folder
+
+
+def evaluation_outputs(checkpoint: Path) -> tuple[Path, Path, Path]:
+    """Where test mode writes beside ``checkpoint``: eval.json, exported/ and videos_eval/; for the best checkpoint
+    eval_best.json, exported_best/ and videos_eval_best/, so that evaluating it keeps the last checkpoint's."""
+    suffix = "_best" if checkpoint.name == BEST_CHECKPOINT else ""
+    folder = checkpoint.parent
+    return folder / f"eval{suffix}.json", folder / f"exported{suffix}", folder / f"videos_eval{suffix}"
 
 
 def expand(overrides: list[str]) -> tuple[list[list[str]], list[list[str]]]:
@@ -76,6 +86,7 @@ class Job:
     returncode: int | None = None  # the training's
     echo: bool = False
     evaluating: bool = False  # the process is the test-mode evaluation that follows the training (sweep_eval)
+    to_evaluate: list[Path] = field(default_factory=list)  # sweep_eval: its checkpoints still to evaluate
     _reader: threading.Thread | None = field(default=None, repr=False)
 
 
@@ -187,7 +198,7 @@ def visible_gpus(cuda_visible_devices: str | None, count: int) -> list[str]:
 def _launch_all(jobs: list[Job], gpus: list[str], options: list[str], train_script: Path, stopped: list[int],
                 echo: bool, evaluate: bool = False) -> None:
     """Run the jobs, as many at once as there are GPUs (one at a time without); with ``evaluate``, each job's last
-    checkpoint is evaluated in test mode on the job's GPU as soon as its training ends."""
+    checkpoint, then its best (save_best), is evaluated in test mode on the job's GPU as soon as its training ends."""
     free = list(gpus) if gpus else [None]
     pending, running = list(jobs), []
     while pending or running:
@@ -206,14 +217,24 @@ def _launch_all(jobs: list[Job], gpus: list[str], options: list[str], train_scri
             if not job.evaluating:
                 job.returncode = job.process.returncode
                 print(f"[sweep] job {job.index} ({job.label}) ended with status {job.returncode}", flush=True)
-                checkpoint = last_checkpoint(job.runs_dir)
-                if evaluate and not stopped and checkpoint is not None:
-                    _start(job, options, train_script, evaluate=checkpoint)
-                    continue
+                if evaluate:
+                    job.to_evaluate = checkpoints_to_evaluate(job.runs_dir)
+            if job.to_evaluate and not stopped:
+                _start(job, options, train_script, evaluate=job.to_evaluate.pop(0))
+                continue
             running.remove(job)
             free.append(job.gpu)
         if stopped:
             pending.clear()
+
+
+def checkpoints_to_evaluate(runs_dir: Path) -> list[Path]:
+    """A finished job's last checkpoint, then its best one when save_best kept one."""
+    last = last_checkpoint(runs_dir)
+    if last is None:
+        return []
+    best = last.parent / BEST_CHECKPOINT
+    return [last, best] if best.is_file() else [last]
 
 
 def last_checkpoint(runs_dir: Path) -> Path | None:
@@ -228,7 +249,7 @@ def last_checkpoint(runs_dir: Path) -> Path | None:
 
 def _start(job: Job, options: list[str], train_script: Path, evaluate: Path | None = None) -> None:
     """Start the job's training, or (``evaluate``: a checkpoint) its test-mode evaluation, whose output is appended
-    to the same log and whose eval.json lands beside the checkpoint."""
+    to the same log and whose eval.json (eval_best.json) lands beside the checkpoint."""
     env = dict(os.environ)
     if job.gpu is not None:
         env["CUDA_VISIBLE_DEVICES"] = str(job.gpu)
@@ -313,6 +334,7 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
         row = {"job": job.index, "label": job.label, "status": job.returncode, "log": str(job.log)}
         row.update(summarise(summary, key) if summary else {"final": None, "best": None, "final_over_best": None})
         row["test"] = test_result(job, key)
+        row["test_best"] = test_result(job, key, best=True)
         rows.append(row)
     (sweep_dir / "sweep.json").write_text(json.dumps({"metric": key, "smoothing": SMOOTHING, "jobs": rows},
                                                      indent=2) + "\n")
@@ -324,11 +346,14 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
     return key, rows
 
 
-def test_result(job: Job, key: str) -> float | None:
-    """The sweep metric in the job's test-mode evaluation (eval.json beside its last checkpoint), or None."""
+def test_result(job: Job, key: str, best: bool = False) -> float | None:
+    """The sweep metric in the job's test-mode evaluation of its last checkpoint (eval.json beside it), or of its
+    best (``best``: eval_best.json), or None."""
     checkpoint = last_checkpoint(job.runs_dir)
-    path = None if checkpoint is None else checkpoint.parent / "eval.json"
-    if path is None or not path.is_file():
+    if checkpoint is None:
+        return None
+    path = evaluation_outputs(checkpoint.parent / BEST_CHECKPOINT if best else checkpoint)[0]
+    if not path.is_file():
         return None
     result = json.loads(path.read_text())
     value = result.get(key[len(METRIC_PREFIX):] if key.startswith(METRIC_PREFIX) else key)
@@ -341,12 +366,12 @@ def markdown_table(rows: list[dict], key: str) -> str:
     def fmt(value, spec: str = ".3f") -> str:
         return "-" if value is None else format(value, spec)
 
-    lines = [f"| job | {name}: final | best | final/best | best at (s) | test mode | iterations | training (s) | "
-             "env-steps/s |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [f"| job | {name}: final | best | final/best | best at (s) | test mode | test, best checkpoint | "
+             "iterations | training (s) | env-steps/s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['label']} | {fmt(r.get('final'))} | {fmt(r.get('best'))} | "
                      f"{fmt(r.get('final_over_best'), '.2f')} | {fmt(r.get('best_at_s'), '.0f')} | "
-                     f"{fmt(r.get('test'))} | {r.get('iterations') if r.get('iterations') is not None else '-'} | "
+                     f"{fmt(r.get('test'))} | {fmt(r.get('test_best'))} | {r.get('iterations') if r.get('iterations') is not None else '-'} | "
                      f"{fmt(r.get('train_time_s'), '.0f')} | {fmt(r.get('env_steps_per_s'), ',.0f')} |")
     return "\n".join(lines)
 
