@@ -15,7 +15,8 @@
 #   shadow    ShadowHand, seeds 1 and 2, and ShadowHandOpenAI_FF, seeds 1 and 2, 1800 s (target: IGE's
 #             consecutive_successes >= 10 within 30 minutes)
 #   shadow_hand  ShadowHand alone, seeds 1 and 2 (the issue's two seeds on two GPUs)
-#   shadow_ent, shadow_logstd, shadow_stdmin, shadow_bounds  ShadowHand, seeds 1 and 2, 900 s, against its plateau
+#   shadow_ent, shadow_logstd, shadow_stdmin, shadow_bounds  ShadowHand (HAND=AllegroHand: that hand), seeds 1 and 2,
+#             900 s, against the hands' plateau
 #             (the action noise collapses and pins the adaptive learning rate at its floor): Isaac Lab's rsl_rl entropy
 #             bonus 0.005; the noise learned as log-std (rl_games' form); the noise floored at 0.1; a bounds loss of
 #             0.01 (the action means sit far outside the clipped range)
@@ -60,10 +61,12 @@ case "$name" in
   rgb) sweep 1200 task=FrankaCubeLiftRGB,FrankaCubeLiftDepth seed=${SEEDS:-1,2} ;;
   shadow) sweep 1800 task=ShadowHand,ShadowHandOpenAI_FF seed=${SEEDS:-1,2} ;;
   shadow_hand) sweep 1800 task=ShadowHand seed=${SEEDS:-1,2} ;;
-  shadow_ent) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} train.algorithm.entropy_coef=0.005 ;;
-  shadow_logstd) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} train.actor.distribution_cfg.std_type=log ;;
-  shadow_stdmin) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} '+train.actor.distribution_cfg.std_range=[0.1,10.0]' ;;
-  shadow_bounds) sweep 900 task=ShadowHand seed=${SEEDS:-1,2} train.algorithm.bounds_loss_coef=0.01 ;;
+  shadow_ent) sweep 900 task=${HAND:-ShadowHand} seed=${SEEDS:-1,2} train.algorithm.entropy_coef=0.005 ;;
+  shadow_logstd) sweep 900 task=${HAND:-ShadowHand} seed=${SEEDS:-1,2} \
+                 train.actor.distribution_cfg.std_type=log ;;
+  shadow_stdmin) sweep 900 task=${HAND:-ShadowHand} seed=${SEEDS:-1,2} \
+                 '+train.actor.distribution_cfg.std_range=[0.1,10.0]' ;;
+  shadow_bounds) sweep 900 task=${HAND:-ShadowHand} seed=${SEEDS:-1,2} train.algorithm.bounds_loss_coef=0.01 ;;
   balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   balance_best) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True ;;
   balance_ent) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True \
