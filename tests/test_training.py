@@ -203,3 +203,17 @@ def test_the_best_checkpoint_follows_the_smoothed_metric_not_the_last(tmp_path, 
     assert best.summary()["iteration"] == 20 and best.summary()["metric"] == key
     assert best.summary()["value"] == pytest.approx(means[20])
     assert (tmp_path / "model_best.pt").read_bytes() == b"weights of iteration 20"
+
+
+@pytest.mark.parametrize("std_type", ["scalar", "log"])
+def test_the_history_records_the_action_noise_the_checkpoint_holds(tmp_path, run_args, std_type):
+    summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=2",
+                                  f"train.actor.distribution_cfg.std_type={std_type}", *run_args]))
+    checkpoint = torch.load(only_run_dir(tmp_path / "runs") / "model_2.pt", weights_only=False, map_location="cpu")
+    # Reference: the saved actor's std parameter (or its log), within rsl-rl-lib's default range [1e-6, 1e6]
+    saved = checkpoint["actor_state_dict"]
+    std = (saved["distribution.std_param"] if std_type == "scalar" else saved["distribution.log_std_param"].exp())
+    std = std.clamp(1e-6, 1e6)
+    last = summary["history"][-1]
+    assert last["action_std_min"] == pytest.approx(float(std.min()))
+    assert last["action_std_mean"] == pytest.approx(float(std.mean()))

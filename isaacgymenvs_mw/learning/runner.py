@@ -219,6 +219,22 @@ class Runner(OnPolicyRunner):
         if self.stop_signal is not None:
             raise StopRequested(self.stop_signal)
 
+    def _action_noise(self) -> dict[str, float]:
+        """The policy's action noise as its parameters hold it after the update: the mean and the smallest standard
+        deviation over the actions. The smallest is the one to watch: a few collapsed actions pin the KL-adaptive rate
+        at its floor (ShadowHand, docs/PERFORMANCE.md). One small read; empty for a policy without a state-independent
+        Gaussian (rsl-rl-lib's GaussianDistribution and ours keep ``std_param`` or ``log_std_param``)."""
+        distribution = getattr(self.alg.get_policy(), "distribution", None)
+        with torch.no_grad():
+            if isinstance(getattr(distribution, "std_param", None), torch.Tensor):
+                std = distribution.std_param.clamp(*distribution.std_range)
+            elif isinstance(getattr(distribution, "log_std_param", None), torch.Tensor):
+                std = distribution.log_std_param.clamp(*distribution.log_std_range).exp()
+            else:
+                return {}
+            low, mean = torch.stack([std.min(), std.mean()]).tolist()
+        return {"action_std_min": low, "action_std_mean": mean}
+
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,
                        skipped: int = 0, restored: str | None = None) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
@@ -232,7 +248,8 @@ class Runner(OnPolicyRunner):
         fps = env_steps / max(collect_s + learn_s, 1e-9)
         record = {"iteration": it + 1, "env_steps": self.total_env_steps, "time_s": self.train_time,
                   "steps_per_s": fps, "collect_s": collect_s, "learn_s": learn_s, **{k: v for k, v in stats.items()},
-                  "losses": {k: float(v) for k, v in losses.items()}, "learning_rate": float(self.alg.learning_rate)}
+                  "losses": {k: float(v) for k, v in losses.items()}, "learning_rate": float(self.alg.learning_rate),
+                  **self._action_noise()}
         self.history.append(record)
         self.nonfinite_resets += int(stats["nonfinite_resets"])
         self.nonfinite_inputs += int(stats.get("nonfinite_inputs", 0))
@@ -244,7 +261,9 @@ class Runner(OnPolicyRunner):
             for key, value in losses.items():
                 writer.add_scalar(f"Loss/{key}", value, it)
             writer.add_scalar("Loss/learning_rate", self.alg.learning_rate, it)
-            writer.add_scalar("Policy/mean_std", self.alg.get_policy().output_std.mean().item(), it)
+            if "action_std_mean" in record:
+                writer.add_scalar("Policy/mean_std", record["action_std_mean"], it)
+                writer.add_scalar("Policy/min_std", record["action_std_min"], it)
             writer.add_scalar("Perf/total_fps", fps, it)
             writer.add_scalar("Perf/collection_time", collect_s, it)
             writer.add_scalar("Perf/learning_time", learn_s, it)
