@@ -21,8 +21,8 @@
 #             bonus 0.005; the noise learned as log-std (rl_games' form); the noise floored at 0.1; a bounds loss of
 #             0.01 (the action means sit far outside the clipped range)
 #   balance   BallBalance, seeds 1-4, 120 s (target: the ball on the plate to the episode cap in >= 95 % of test episodes)
-#   balance_best  the same, naming save_best=True (now the default): the sweep evaluates each job's best checkpoint too
-#   balance_ent   balance_best with an entropy bonus of 0.005 (the recipe has none; its action noise collapses)
+#   balance_best  the same (its name from when save_best was off; the sweep evaluates each job's best checkpoint too)
+#   balance_ent   balance with an entropy bonus of 0.005 (the recipe has none; its action noise collapses)
 #   quad      Quadcopter, seeds 1-4, 120 s (target: >= 95 % of test episodes reach the target)
 #   allegro_vn, stack_vn  AllegroHand / FrankaCubeStack, seeds 1 and 2, value normalisation on only
 #   allegro_phys  AllegroHand, seeds 1 and 2, with Isaac Lab's MuJoCo Warp contact settings: 240 Hz physics (its 2
@@ -67,9 +67,8 @@ case "$name" in
   shadow_stdmin) sweep 900 task=${HAND:-ShadowHand} seed=${SEEDS:-1,2} \
                  '+train.actor.distribution_cfg.std_range=[0.1,10.0]' ;;
   shadow_bounds) sweep 900 task=${HAND:-ShadowHand} seed=${SEEDS:-1,2} train.algorithm.bounds_loss_coef=0.01 ;;
-  balance) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
-  balance_best) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True ;;
-  balance_ent) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction save_best=True \
+  balance|balance_best) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
+  balance_ent) sweep 120 task=BallBalance seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction \
                train.algorithm.entropy_coef=0.005 ;;
   quad) sweep 120 task=Quadcopter seed=${SEEDS:-1,2,3,4} sweep_metric=timeout_fraction ;;
   allegro_phys) sweep 1500 task=AllegroHand seed=${SEEDS:-1,2} task.sim.dt=0.004166666666666667 \

@@ -238,7 +238,7 @@ class Runner(OnPolicyRunner):
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,
                        skipped: int = 0, restored: str | None = None) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
-        stats = env.stats.pop()  # the one host sync of the iteration
+        stats = env.stats.pop()  # the env statistics' one host read of the iteration
         world = self.gpu_world_size
         env_steps = self.cfg["num_steps_per_env"] * env.num_envs * world
         self.total_env_steps += env_steps
@@ -320,9 +320,10 @@ class Runner(OnPolicyRunner):
 
 class BestCheckpoint:
     """``save_best``: model_best.pt in the run directory, a copy of the saved checkpoint at which the run's metric
-    (``sweep_metric``: ``auto`` is the task's first declared metric, else the episode reward), averaged over the last
-    ``SMOOTHING`` iterations that report it, was highest. Only saved checkpoints are candidates (every
-    ``save_interval`` iterations, and the last), so keeping the best costs a file copy, not a save per iteration."""
+    (``sweep_metric``: ``auto`` is the task's primary metric, else its first declared one, else the episode reward),
+    averaged over the last ``SMOOTHING`` iterations that report it, was highest. Only saved checkpoints are candidates
+    (every ``save_interval`` iterations, and the last), so keeping the best costs a file copy, not a save per
+    iteration."""
 
     def __init__(self, run_dir: str | Path, metric: str, declared: list[str]) -> None:
         self.path = Path(run_dir) / BEST_CHECKPOINT
@@ -333,7 +334,8 @@ class BestCheckpoint:
         self.source: str | None = None
 
     def consider(self, history: list[dict], checkpoint: str) -> None:
-        """``checkpoint`` was just saved after the last iteration of ``history``: keep it if its metric is the best."""
+        """``checkpoint`` was just saved after the last iteration of ``history``: keep it if its metric is the
+        best."""
         if not history:
             return
         self.key = metric_key(history, self.metric, self.declared)

@@ -12,13 +12,13 @@ product, in Hydra's order). Each job is one ``train.py`` process with the job's 
   ends (``train.py test=True``: eval.json beside the checkpoint, output appended to the job's log), then its best
   checkpoint when save_best kept one (eval_best.json);
 * when the jobs are done, ``sweep.json`` and ``sweep.md`` hold one row per job (final, best and final/best of the
-  sweep metric, its test-mode values for the last and the best checkpoint, iterations, training time and rate) and ``sweep.png`` the metric against
-  training time, one line per job.
+  sweep metric, its test-mode values for the last and the best checkpoint, iterations, training time and rate) and
+  ``sweep.png`` the metric against training time, one line per job.
 
 The metric (run key ``sweep_metric``; ``auto``: the task's primary metric, else the first metric it declares, such
-as ``success``, ``consecutive_successes`` or ``terrain_level``, else ``mean_episode_reward``) is read from each run's summary.json
-history, smoothed over ``SMOOTHING`` iterations that finished episodes: "final" is the smoothed value at the end,
-"best" the largest smoothed value, so that final/best <= 1 says how much of its best a run kept.
+as ``success``, ``consecutive_successes`` or ``terrain_level``, else ``mean_episode_reward``) is read from each run's
+summary.json history, smoothed over ``SMOOTHING`` iterations that finished episodes: "final" is the smoothed value at
+the end, "best" the largest smoothed value, so that final/best <= 1 says how much of its best a run kept.
 
 SIGTERM or SIGINT to the sweep reaches every running job (each stops with its checkpoint and summary as a single
 run does), starts no new one, writes the aggregate of what exists and exits with the signal's status.
@@ -371,7 +371,8 @@ def markdown_table(rows: list[dict], key: str) -> str:
     for r in rows:
         lines.append(f"| {r['label']} | {fmt(r.get('final'))} | {fmt(r.get('best'))} | "
                      f"{fmt(r.get('final_over_best'), '.2f')} | {fmt(r.get('best_at_s'), '.0f')} | "
-                     f"{fmt(r.get('test'))} | {fmt(r.get('test_best'))} | {r.get('iterations') if r.get('iterations') is not None else '-'} | "
+                     f"{fmt(r.get('test'))} | {fmt(r.get('test_best'))} | "
+                     f"{r.get('iterations') if r.get('iterations') is not None else '-'} | "
                      f"{fmt(r.get('train_time_s'), '.0f')} | {fmt(r.get('env_steps_per_s'), ',.0f')} |")
     return "\n".join(lines)
 

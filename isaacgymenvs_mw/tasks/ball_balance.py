@@ -46,7 +46,6 @@ class BallBalance(VecTask):
     # done well when its episodes last to the time limit (the ball kept on the tray): sweeps and save_best follow it
     primary_metric = "timeout_fraction"
 
-
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,

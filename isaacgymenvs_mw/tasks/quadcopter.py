@@ -48,7 +48,6 @@ class Quadcopter(VecTask):
     # done well when its episodes last to the time limit (no IGE failure): sweeps and save_best follow it
     primary_metric = "timeout_fraction"
 
-
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
         env = cfg["env"]
