@@ -217,3 +217,26 @@ def test_the_history_records_the_action_noise_the_checkpoint_holds(tmp_path, run
     last = summary["history"][-1]
     assert last["action_std_min"] == pytest.approx(float(std.min()))
     assert last["action_std_mean"] == pytest.approx(float(std.mean()))
+    assert summary["noise_collapse"] is None  # std near its initial 1.0: nothing has collapsed
+
+
+def test_a_collapsed_action_noise_is_reported_once_by_its_actuator_name(tmp_path, run_args, capsys):
+    import mujoco
+
+    # Every action's std starts at 0.005 and the adaptive rate is held at its floor (1e-5): the collapse from the start.
+    summary = run(compose_config(["task=Ant", "num_envs=4", "max_iterations=2", "train.runner.save_interval=1",
+                                  "train.actor.distribution_cfg.init_std=0.005", "train.algorithm.learning_rate=1e-5",
+                                  "+train.algorithm.learning_rate_max=1e-5", *run_args]))
+    out = capsys.readouterr().out
+    collapse = summary["noise_collapse"]
+    assert collapse is not None and collapse["iteration"] == 1 and collapse["learning_rate"] == pytest.approx(1e-5)
+    # Reference: the checkpoint saved after iteration 1 and the actuator names MuJoCo C reads from Ant's model
+    saved = torch.load(only_run_dir(tmp_path / "runs", "Ant") / "model_1.pt", weights_only=False, map_location="cpu")
+    std = saved["actor_state_dict"]["distribution.std_param"]
+    model = mujoco.MjModel.from_xml_path(str(REPO_ROOT / "assets/mjcf/ant.xml"))
+    index = int(std.argmin())
+    assert collapse["action"] == index and collapse["std"] == pytest.approx(float(std.min()))
+    assert collapse["actuator"] == mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, index)
+    assert summary["history"][0]["action_std_min_index"] == index
+    assert out.count("the action noise has collapsed") == 1  # once per run, not every iteration
+    assert f"action {index} ({collapse['actuator']}) has a std of" in out

@@ -142,6 +142,7 @@ def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, st
         "metrics": training_metric_keys(task),  # their history keys, in the task's order (the sweep's "auto")
         "nonfinite_resets": runner.nonfinite_resets,
         **runner.learner_health(),  # optimiser steps skipped, states restored
+        "noise_collapse": runner.noise_collapse,  # the first action whose noise collapsed with the rate at its floor
         "device": device_description(task.sim_device),
         "versions": package_versions(),
         "run_dir": str(run_dir),

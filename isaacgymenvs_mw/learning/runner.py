@@ -25,6 +25,7 @@ from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState, learner_tensors
 from isaacgymenvs_mw.learning.loggers import make_writer
+from isaacgymenvs_mw.learning.ppo import LR_MIN
 from isaacgymenvs_mw.learning.sweep import BEST_CHECKPOINT, SMOOTHING, metric_key, smoothed
 from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
@@ -33,6 +34,10 @@ from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401  (StopRequested: imported from here too)
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")
+# An action whose noise std is below this while the KL-adaptive rate sits at its floor has collapsed: moving its mean
+# by 0.18 std (0.0018 here, under a thousandth of the [-1, 1] range) already spends a KL target of 0.016, so every
+# update stops there and the other actions barely learn (ShadowHand's wrist, docs/PERFORMANCE.md).
+NOISE_COLLAPSE_STD = 0.01
 
 
 def rsl_rl_config(train_cfg: dict) -> dict:
@@ -93,6 +98,7 @@ class Runner(OnPolicyRunner):
         self.nonfinite_inputs = 0
         self.guard = LearnerGuard(lambda: learner_tensors(self.alg))
         self._good_iteration: int | None = None  # the iteration whose learner state the guard holds
+        self.noise_collapse: dict | None = None  # summary.json's record of the first collapsed action noise
 
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False,
               max_train_time_s: float | None = None) -> None:
@@ -232,8 +238,26 @@ class Runner(OnPolicyRunner):
                 std = distribution.log_std_param.clamp(*distribution.log_std_range).exp()
             else:
                 return {}
-            low, mean = torch.stack([std.min(), std.mean()]).tolist()
-        return {"action_std_min": low, "action_std_mean": mean}
+            low, mean, index = torch.stack([std.min(), std.mean(), std.argmin().to(std.dtype)]).tolist()
+        return {"action_std_min": low, "action_std_mean": mean, "action_std_min_index": int(index)}
+
+    def _collapsed_noise(self, record: dict) -> dict | None:
+        """The collapse this iteration shows (see NOISE_COLLAPSE_STD), named by the action's actuator, or None."""
+        alg = self.alg
+        adaptive = getattr(alg, "desired_kl", None) is not None and getattr(alg, "schedule", None) == "adaptive"
+        floor = getattr(alg, "learning_rate_min", LR_MIN)
+        if not adaptive or "action_std_min" not in record or record["action_std_min"] >= NOISE_COLLAPSE_STD:
+            return None
+        if record["learning_rate"] > floor * (1.0 + 1e-6):
+            return None
+        index = record["action_std_min_index"]
+        task = getattr(self.env, "task", None)
+        sim = getattr(task, "sim", None)
+        # VecTask's contract: action i commands actuator i whenever the counts agree (learning/export.py says the same)
+        named = sim is not None and task.num_actions == sim.num_actuators
+        return {"iteration": record["iteration"], "action": index,
+                "actuator": sim.actuator_names[index] if named else None, "std": record["action_std_min"],
+                "mean_std": record["action_std_mean"], "learning_rate": record["learning_rate"]}
 
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,
                        skipped: int = 0, restored: str | None = None) -> None:
@@ -257,6 +281,16 @@ class Runner(OnPolicyRunner):
         record.update(skipped_optimizer_steps=skipped, learner_restored=restored is not None)
         if not self.is_main:
             return
+        if self.noise_collapse is None:
+            self.noise_collapse = self._collapsed_noise(record)
+            if self.noise_collapse is not None:
+                c = self.noise_collapse
+                which = f"action {c['action']}" + (f" ({c['actuator']})" if c["actuator"] else "")
+                print(f"[it {it + 1:>5}] the action noise has collapsed: {which} has a std of {c['std']:.4f} (mean "
+                      f"over the actions {c['mean_std']:.3g}) while the adaptive learning rate sits at its floor "
+                      f"({c['learning_rate']:.0e}), so each update spends the KL target on that action alone. If the "
+                      "curve flattens short of the goal, see the README's levers (e.g. "
+                      "+train.actor.distribution_cfg.std_range=[0.1,10.0])", flush=True)
         if writer is not None:
             for key, value in losses.items():
                 writer.add_scalar(f"Loss/{key}", value, it)
@@ -264,6 +298,7 @@ class Runner(OnPolicyRunner):
             if "action_std_mean" in record:
                 writer.add_scalar("Policy/mean_std", record["action_std_mean"], it)
                 writer.add_scalar("Policy/min_std", record["action_std_min"], it)
+                writer.add_scalar("Policy/min_std_action", record["action_std_min_index"], it)
             writer.add_scalar("Perf/total_fps", fps, it)
             writer.add_scalar("Perf/collection_time", collect_s, it)
             writer.add_scalar("Perf/learning_time", learn_s, it)
