@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
-from isaacgymenvs_mw.learning.sweep import SMOOTHING, expand, metric_key, summarise, visible_gpus
+from isaacgymenvs_mw.learning.sweep import SMOOTHING, expand, markdown_table, metric_key, summarise, visible_gpus
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
@@ -62,6 +62,17 @@ def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_m
     plain = [{"time_s": 1.0, "timeout_fraction": 0.5, "mean_episode_length": 10.0}]
     assert metric_key(plain, "timeout_fraction", []) == "timeout_fraction"  # a history key as it is
     assert metric_key(plain, "success", []) == "Episode/success"  # a declared metric's short name, even when absent
+
+
+def test_the_table_says_where_a_lanes_action_noise_collapsed():
+    collapsed = {"iteration": 1417, "action": 1, "actuator": "A_WRJ1", "std": 0.0034, "mean_std": 4.2,
+                 "learning_rate": 1e-5}
+    unnamed = dict(collapsed, actuator=None)
+    rows = [dict(summarise({"history": [], "noise_collapse": c}, "mean_episode_reward"), label=label)
+            for label, c in (("a", collapsed), ("b", unnamed), ("c", None))]
+    lines = markdown_table(rows, "mean_episode_reward").splitlines()
+    assert lines[0].endswith("| noise collapsed |") and lines[1].count("|---") == lines[0].count(" | ") + 1
+    assert [line.rsplit("|", 2)[1].strip() for line in lines[2:]] == ["it 1417, A_WRJ1", "it 1417, action 1", "-"]
 
 
 def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(tmp_path):

@@ -305,7 +305,8 @@ def summarise(summary: dict, key: str) -> dict:
     points = [(float(r["time_s"]), float(r[key])) for r in summary.get("history", []) if r.get(key) is not None]
     row = {"iterations": summary.get("final_iteration"), "train_time_s": summary.get("train_time_s"),
            "env_steps_per_s": summary.get("env_steps_per_s"), "interrupted": summary.get("interrupted"),
-           "final": None, "best": None, "final_over_best": None, "best_at_s": None}
+           "final": None, "best": None, "final_over_best": None, "best_at_s": None,
+           "noise_collapse": summary.get("noise_collapse")}  # where a lane's learning stopped (runner.py)
     if points:
         smooth = smoothed([v for _, v in points])
         best = max(range(len(smooth)), key=smooth.__getitem__)
@@ -366,14 +367,19 @@ def markdown_table(rows: list[dict], key: str) -> str:
     def fmt(value, spec: str = ".3f") -> str:
         return "-" if value is None else format(value, spec)
 
+    def collapse(c: dict | None) -> str:
+        return "-" if not c else f"it {c['iteration']}, {c['actuator'] or 'action ' + str(c['action'])}"
+
     lines = [f"| job | {name}: final | best | final/best | best at (s) | test mode | test, best checkpoint | "
-             "iterations | training (s) | env-steps/s |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "iterations | training (s) | env-steps/s | noise collapsed |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['label']} | {fmt(r.get('final'))} | {fmt(r.get('best'))} | "
                      f"{fmt(r.get('final_over_best'), '.2f')} | {fmt(r.get('best_at_s'), '.0f')} | "
                      f"{fmt(r.get('test'))} | {fmt(r.get('test_best'))} | "
                      f"{r.get('iterations') if r.get('iterations') is not None else '-'} | "
-                     f"{fmt(r.get('train_time_s'), '.0f')} | {fmt(r.get('env_steps_per_s'), ',.0f')} |")
+                     f"{fmt(r.get('train_time_s'), '.0f')} | {fmt(r.get('env_steps_per_s'), ',.0f')} | "
+                     f"{collapse(r.get('noise_collapse'))} |")
     return "\n".join(lines)
 
 
