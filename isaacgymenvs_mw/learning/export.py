@@ -28,12 +28,12 @@ METADATA_FILE = "metadata.json"  # name of the TorchScript extra file
 def policy_metadata(task) -> dict[str, Any]:
     """The task's deployment description (``VecTask.deployment_info``) plus the versions that produced it."""
     info = dict(task.deployment_info())
-    sim = task.sim
-    if task.num_actions == sim.num_actuators:
-        # VecTask's contract (check_action_size): action i commands the model's actuator i, ctrl[:, i]. The names
-        # give a plain task's actions a meaning on the robot; legged tasks' joint_names say the same in joint terms.
-        info.setdefault("actuator_names", list(sim.actuator_names))
-        info.setdefault("actuator_joints", list(sim.actuator_joints))  # the joint each drives (None: not a joint)
+    actuators = task.action_actuators()
+    if actuators is not None:
+        # The names give a plain task's actions a meaning on the robot; legged tasks' joint_names say the same in
+        # joint terms.
+        info.setdefault("actuator_names", actuators)
+        info.setdefault("actuator_joints", list(task.sim.actuator_joints))  # the joint each drives (None: not a joint)
     info["versions"] = {"isaacgymenvs_mw": __version__, **package_versions()}
     info["files"] = {"onnx": "policy.onnx", "torchscript": "policy.pt", "mujoco_model": "model.mjb"}
     return info

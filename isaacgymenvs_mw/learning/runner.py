@@ -251,12 +251,9 @@ class Runner(OnPolicyRunner):
         if record["learning_rate"] > floor * (1.0 + 1e-6):
             return None
         index = record["action_std_min_index"]
-        task = getattr(self.env, "task", None)
-        sim = getattr(task, "sim", None)
-        # VecTask's contract: action i commands actuator i whenever the counts agree (learning/export.py says the same)
-        named = sim is not None and task.num_actions == sim.num_actuators
+        actuators = self.env.task.action_actuators()
         return {"iteration": record["iteration"], "action": index,
-                "actuator": sim.actuator_names[index] if named else None, "std": record["action_std_min"],
+                "actuator": actuators[index] if actuators else None, "std": record["action_std_min"],
                 "mean_std": record["action_std_mean"], "learning_rate": record["learning_rate"]}
 
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,

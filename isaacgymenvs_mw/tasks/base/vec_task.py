@@ -216,6 +216,11 @@ class VecTask:
                 "clip_actions": self.clip_actions if math.isfinite(self.clip_actions) else None,
                 **self._built_observations().describe()}
 
+    def action_actuators(self) -> list[str] | None:
+        """The model actuator each action commands, by name: VecTask's contract (check_action_size) makes action i
+        ``ctrl[:, i]`` whenever the counts agree. None for a task whose actions are not its actuators."""
+        return list(self.sim.actuator_names) if self.num_actions == self.sim.num_actuators else None
+
     def get_state(self) -> torch.Tensor:
         """The critic's input as the last step returned it (stacked when ``env.history.critic`` is set)."""
         return self.observations.get_state()
