@@ -8,10 +8,14 @@
 #            at 5 and at 10: IGE's consecutive_successes, the task's own running metric, read from summary.json's
 #            history.
 # The time is from process start: start-up (summary wall time minus training time) plus the training time at the
-# first checkpoint or iteration that meets the criterion.
-# Usage: bash benchmarks/gpu_time_to_solve.sh go1|allegro OUTDIR [GPU counts, default 1,2,4]
+# first checkpoint or iteration that meets the criterion. One seed decides little where the criterion sits at the edge
+# of a seed's noise: SEEDS=1,2,3 runs each GPU count once per seed (one row each; default: the task's own seed).
+# Usage: bash benchmarks/gpu_time_to_solve.sh go1|allegro OUTDIR [GPU counts, default 1,2,4] [train.py overrides...]
+#   e.g. SEEDS=1,2 bash benchmarks/gpu_time_to_solve.sh allegro OUT 1,2,4 train.actor.distribution_cfg.std_type=log
 set -uo pipefail
-name=$1; out=$2; counts=${3:-1,2,4}
+name=$1; out=$2; counts=${3:-1,2,4}; shift $(( $# < 3 ? $# : 3 ))
+overrides=("$@")
+seeds=${SEEDS:-default}
 mkdir -p "$out"
 export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVLS=1  # NVLink multicast off
 case "$name" in
@@ -33,38 +37,41 @@ def solved(path):
 sys.exit(0 if any(solved(p) for p in sys.argv[1:]) else 1)
 PY
 }
+for seed in ${seeds//,/ }; do
 for k in ${counts//,/ }; do
-  run="$out/$task.g$k"
+  run="$out/$task.g$k.s$seed"
+  seed_arg=(); [ "$seed" != default ] && seed_arg=(seed="$seed")
   launch=(python3 train.py)
   [ "$k" -gt 1 ] && launch=(torchrun --standalone --nnodes=1 --nproc_per_node="$k" train.py multi_gpu=True)
   # the budget ends an AllegroHand run as at its last iteration (max_train_time_s); the timeout only guards a hang
   timeout --preserve-status -s TERM $(( ${BUDGET_S:-1500} + 600 )) "${launch[@]}" task=$task headless=True \
-    num_envs=$((total / k)) runs_dir="$run" "${train_args[@]}" > "$run.log" 2>&1
-  echo "$task on $k GPU(s): exit $?" >> "$out/exits.txt"
+    num_envs=$((total / k)) runs_dir="$run" "${seed_arg[@]}" "${train_args[@]}" "${overrides[@]}" > "$run.log" 2>&1
+  echo "$task on $k GPU(s), seed $seed: exit $?" >> "$out/exits.txt"
   if [ "$name" = go1 ]; then  # the checkpoints in test mode in iteration order, one per GPU, until one solves it
     batch=()
     for ckpt in $(ls "$run"/"$task"/*/model_[0-9]*.pt | sort -V); do
       CUDA_VISIBLE_DEVICES=${#batch[@]} python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
-        num_envs=1024 > "${ckpt%.pt}.eval.log" 2>&1 &
+        num_envs=1024 "${overrides[@]}" > "${ckpt%.pt}.eval.log" 2>&1 &
       batch+=("${ckpt%.pt}.eval.log")
       if [ ${#batch[@]} = "$host_gpus" ]; then wait; go1_solved "${batch[@]}" && break; batch=(); fi
     done
     wait
   fi
 done
-python3 - "$out" "$task" "$name" "$counts" <<'PY'
-import glob, json, os, re, sys
-out, task, name, counts = sys.argv[1:5]
+done
+python3 - "$out" "$task" "$name" "$counts" "$seeds" <<'PY'
+import glob, itertools, json, os, re, sys
+out, task, name, counts, seeds = sys.argv[1:6]
 METRIC = "Episode/consecutive_successes"  # the task's running metric in summary.json's history
-for k in counts.split(","):
-    runs = sorted(glob.glob(f"{out}/{task}.g{k}/{task}/*/summary.json"))
+for seed, k in itertools.product(seeds.split(","), counts.split(",")):
+    runs = sorted(glob.glob(f"{out}/{task}.g{k}.s{seed}/{task}/*/summary.json"))
     if not runs:
-        print(json.dumps({"task": task, "gpus": int(k), "error": "no summary.json"}))
+        print(json.dumps({"task": task, "gpus": int(k), "seed": seed, "error": "no summary.json"}))
         continue
     s = json.load(open(runs[-1]))
     start_up = s["wall_time_s"] - s["train_time_s"]
     at = {h["iteration"]: h for h in s["history"]}
-    row = {"task": task, "gpus": s["world_size"], "envs_in_total": s["num_envs"] * s["world_size"],
+    row = {"task": task, "gpus": s["world_size"], "seed": s["seed"], "envs_in_total": s["num_envs"] * s["world_size"],
            "start_up_s": round(start_up, 1), "env_steps_per_s": round(s["env_steps_per_s"])}
     if name == "go1":
         solved = None
