@@ -37,12 +37,15 @@ from isaacgymenvs_mw.utils.cli_errors import exit_on_input_error, report_input_e
 def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
-    from isaacgymenvs_mw.learning.launch import run
+    from isaacgymenvs_mw.learning.train_config import check_before_start
     from isaacgymenvs_mw.utils.config import check_task_yaml, record_task_dir
 
     with exit_on_input_error():
         check_task_yaml(cfg, HydraConfig.get())  # an empty task YAML, or one without name:, named by its path
         record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the YAML's folder
+        check_before_start(cfg)  # the run's keys and the train YAML, before the learning stack's 4 s of imports
+        from isaacgymenvs_mw.learning.launch import run
+
         try:
             run(cfg, started_at=_STARTED_AT)
         except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: a training run saved its checkpoint and summary

@@ -82,6 +82,18 @@ def test_bad_input_is_one_line_naming_the_key(outcomes, args, message):
     assert key in errors[0], (key, errors[0])
 
 
+@pytest.mark.parametrize("args", ["num_envs=0", "train.algorithm.gamma=2", "test=True checkpoint=missing.pt"])
+def test_a_bad_run_or_train_value_is_told_before_the_learning_stack_is_imported(tmp_path, args):
+    # python -X importtime lists every module the process imported, on stderr: none of torch, rsl_rl or the simulator
+    cmd = [sys.executable, "-X", "importtime", str(REPO_ROOT / "train.py"), *CPU_ARGS, *args.split()]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    imported = {line.rsplit("|", 1)[1].strip() for line in proc.stderr.splitlines() if line.startswith("import time:")}
+    assert {"hydra", "omegaconf"} <= imported  # the listing is complete: train.py's own imports are in it
+    assert not {"torch", "rsl_rl", "warp", "mujoco_warp"} & imported, sorted(imported)
+    assert proc.stderr.splitlines()[-1].startswith("[train] error: ")
+
+
 def test_verbose_keeps_the_traceback(tmp_path):
     proc = run_row("num_envs=0 verbose=True", tmp_path)
     assert proc.returncode != 0 and "Traceback" in proc.stderr and "num_envs=0 is invalid" in proc.stderr

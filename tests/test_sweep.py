@@ -114,6 +114,8 @@ def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(t
     (["seed=1,2", "multi_gpu=True"], "multi_gpu=True: a sweep runs its jobs one per GPU"),
     (["seed=interval(1,3)"], "an interval sweep needs a sweeper"),
     (["seed=1,2", "sweep_eval=maybe"], "sweep_eval='maybe' is invalid"),
+    (["train.algorithm.gamma=0.99,2"], "train.algorithm.gamma=2 is invalid"),  # the train YAML, in its last job
+    (["seed=1,2", "checkpoint=missing.pt"], "checkpoint='missing.pt': no such file"),
 ])
 def test_bad_input_in_any_job_is_one_line_before_any_job_runs(tmp_path, args, message):
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", *args, *CPU_ARGS,

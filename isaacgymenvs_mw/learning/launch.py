@@ -5,7 +5,6 @@ from __future__ import annotations
 import datetime
 import json
 import os
-import re
 import signal
 import time
 from pathlib import Path
@@ -28,9 +27,9 @@ from isaacgymenvs_mw.learning.runner import (
 from isaacgymenvs_mw.learning.sweep import evaluation_outputs
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
-from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, time_budget, to_dict
+from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, checkpoint_path, time_budget, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
-from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError, one_line
+from isaacgymenvs_mw.utils.errors import ConfigError, one_line
 from isaacgymenvs_mw.utils.seeding import set_seed
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 
@@ -248,19 +247,9 @@ def _new_run_dir(path: Path) -> Path:
 
 def _read_checkpoint(cfg: DictConfig) -> tuple[Path | None, dict | None]:
     """``checkpoint=`` as a path and its contents (on the CPU), read before the simulator is built."""
-    if not cfg.checkpoint:
-        if cfg.test:
-            raise ConfigError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
+    path = checkpoint_path(cfg)
+    if path is None:
         return None, None
-    path = Path(str(cfg.checkpoint)).expanduser().resolve()
-    if path.is_dir():  # a run directory: name the file wanted, and the run's latest when it holds any
-        numbered = ((f, re.fullmatch(r"model_(\d+)", f.stem)) for f in path.glob("model_*.pt"))
-        iteration = {f: int(m.group(1)) for f, m in numbered if m}  # by number: model_9 comes before model_10
-        hint = f"its latest: checkpoint={max(iteration, key=iteration.get)}" if iteration else "none is in it"
-        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is a directory; give a model_*.pt file written by "
-                          f"a training run ({hint})")
-    if not path.is_file():
-        raise MissingFileError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
     try:  # before the simulator is built, which can take minutes
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:

@@ -109,7 +109,7 @@ def run_sweep(argv: list[str], train_script: Path) -> int:
     jobs = [Job(k, o, " ".join(label) or f"job{k}", sweep_dir / f"job{k}", sweep_dir / f"job{k}.log")
             for k, (o, label) in enumerate(zip(jobs_overrides, labels))]
     side_by_side = len(gpus) > 1
-    evaluate = cfg.get("sweep_eval", False) is True  # check_run_config refused anything but a boolean
+    evaluate = cfg.get("sweep_eval", False) is True  # check_before_start refused anything but a boolean
     print(f"[sweep] {len(jobs)} job(s) of {cfg.task_name} "
           f"{f'side by side on {len(gpus)} GPUs' if side_by_side else 'one after another'}; {sweep_dir}", flush=True)
 
@@ -159,8 +159,9 @@ def _split_config_args(argv: list[str]) -> tuple[list[str], list[str]]:
 
 
 def _compose(overrides: list[str], options: list[str]):
-    """The job's config, with its run-level keys checked as train.py checks them."""
-    from isaacgymenvs_mw.utils.config import check_run_config, compose_config
+    """The job's config, with its run-level keys and train YAML checked as train.py checks them."""
+    from isaacgymenvs_mw.learning.train_config import check_before_start
+    from isaacgymenvs_mw.utils.config import compose_config
 
     config_dir = None
     for i, option in enumerate(options):
@@ -169,7 +170,7 @@ def _compose(overrides: list[str], options: list[str]):
         elif option.startswith("--config-dir="):
             config_dir = option.split("=", 1)[1]
     cfg = compose_config(overrides, config_dir=config_dir)
-    check_run_config(cfg)
+    check_before_start(cfg)
     return cfg
 
 

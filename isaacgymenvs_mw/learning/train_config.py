@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
-from isaacgymenvs_mw.utils.config import boolean, real_number, whole_number
+from omegaconf import DictConfig
+
+from isaacgymenvs_mw.utils.config import boolean, check_run_config, checkpoint_path, real_number, to_dict, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
+
+TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")  # the train YAML's sections, as OnPolicyRunner reads them
 
 # Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.
 _TRAIN_CHECKS = {
@@ -28,8 +32,20 @@ _TRAIN_CHECKS = {
 _SCHEDULES = ("adaptive", "fixed")
 
 
+def check_before_start(cfg: DictConfig) -> None:
+    """The checks that need no task and no torch: the run-level keys, the checkpoint's path and the train YAML.
+    train.py and the sweep make them before the learning stack is imported (torch, rsl-rl-lib and the simulator take
+    about 4 s), so that a mistyped value is told at once; the launcher makes them again for its own callers."""
+    check_run_config(cfg)
+    checkpoint_path(cfg)
+    check_train_config(to_dict(cfg.train))
+
+
 def check_train_config(train_cfg: dict) -> None:
     """Fail on train YAML values of the wrong kind or range, naming ``train.<section>.<key>``, before rsl_rl runs."""
+    missing = [s for s in TRAIN_SECTIONS if s not in train_cfg]
+    if missing:
+        raise ConfigError(f"train config lacks section(s) {missing}; expected {list(TRAIN_SECTIONS)}")
     for (section, key), check in _TRAIN_CHECKS.items():
         if key in (train_cfg.get(section) or {}):
             check(train_cfg[section][key], f"train.{section}.{key}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Sequence
@@ -194,6 +195,25 @@ def cpu_threads(value) -> int:
     except ConfigError:
         raise ConfigError(f"cpu_threads={value!r} is invalid: give a whole number >= 1 or auto (all "
                           f"{os.cpu_count()} cores)") from None
+
+
+def checkpoint_path(cfg: DictConfig) -> Path | None:
+    """``checkpoint=`` as an existing file (None when not given, which test mode refuses); its contents are read by
+    the launcher, which has torch."""
+    if not cfg.checkpoint:
+        if cfg.test:
+            raise ConfigError("test=True needs checkpoint=PATH to a model_*.pt written by a training run")
+        return None
+    path = Path(str(cfg.checkpoint)).expanduser().resolve()
+    if path.is_dir():  # a run directory: name the file wanted, and the run's latest when it holds any
+        numbered = ((f, re.fullmatch(r"model_(\d+)", f.stem)) for f in path.glob("model_*.pt"))
+        iteration = {f: int(m.group(1)) for f, m in numbered if m}  # by number: model_9 comes before model_10
+        hint = f"its latest: checkpoint={max(iteration, key=iteration.get)}" if iteration else "none is in it"
+        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is a directory; give a model_*.pt file written by "
+                          f"a training run ({hint})")
+    if not path.is_file():
+        raise MissingFileError(f"checkpoint='{cfg.checkpoint}': no such file ({path})")
+    return path
 
 
 def check_runs_dir(runs_dir: str) -> None:
