@@ -220,19 +220,23 @@ def test_the_history_records_the_action_noise_the_checkpoint_holds(tmp_path, run
     assert summary["noise_collapse"] is None  # std near its initial 1.0: nothing has collapsed
 
 
-def test_a_collapsed_action_noise_is_reported_once_by_its_actuator_name(tmp_path, run_args, capsys):
+@pytest.mark.parametrize("std_type, lever", [("scalar", "train.actor.distribution_cfg.std_type=log"),
+                                             ("log", "+train.actor.distribution_cfg.std_range=[0.1,10.0]")])
+def test_a_collapsed_action_noise_is_reported_once_by_its_actuator_name(tmp_path, run_args, capsys, std_type, lever):
     import mujoco
 
     # Every action's std starts at 0.005 and the adaptive rate is held at its floor (1e-5): the collapse from the start.
     summary = run(compose_config(["task=Ant", "num_envs=4", "max_iterations=2", "train.runner.save_interval=1",
                                   "train.actor.distribution_cfg.init_std=0.005", "train.algorithm.learning_rate=1e-5",
+                                  f"train.actor.distribution_cfg.std_type={std_type}",
                                   "+train.algorithm.learning_rate_max=1e-5", *run_args]))
     out = capsys.readouterr().out
     collapse = summary["noise_collapse"]
     assert collapse is not None and collapse["iteration"] == 1 and collapse["learning_rate"] == pytest.approx(1e-5)
     # Reference: the checkpoint saved after iteration 1 and the actuator names MuJoCo C reads from Ant's model
     saved = torch.load(only_run_dir(tmp_path / "runs", "Ant") / "model_1.pt", weights_only=False, map_location="cpu")
-    std = saved["actor_state_dict"]["distribution.std_param"]
+    actor = saved["actor_state_dict"]
+    std = actor["distribution.std_param"] if std_type == "scalar" else actor["distribution.log_std_param"].exp()
     model = mujoco.MjModel.from_xml_path(str(REPO_ROOT / "assets/mjcf/ant.xml"))
     index = int(std.argmin())
     assert collapse["action"] == index and collapse["std"] == pytest.approx(float(std.min()))
@@ -240,3 +244,4 @@ def test_a_collapsed_action_noise_is_reported_once_by_its_actuator_name(tmp_path
     assert summary["history"][0]["action_std_min_index"] == index
     assert out.count("the action noise has collapsed") == 1  # once per run, not every iteration
     assert f"action {index} ({collapse['actuator']}) has a std of" in out
+    assert f"levers (e.g. {lever})" in out  # the noise as a log first; for a policy that has it, a floor

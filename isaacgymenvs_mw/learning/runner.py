@@ -252,6 +252,14 @@ class Runner(OnPolicyRunner):
                 "actuator": actuators[index] if actuators else None, "std": record["action_std_min"],
                 "mean_std": record["action_std_mean"], "learning_rate": record["learning_rate"]}
 
+    def _noise_lever(self) -> str:
+        """The override to try first against a collapse: the noise learned as a log (on AllegroHand no action's noise
+        collapsed with it in two seeds, docs/PERFORMANCE.md), or, for a policy that has it already, a floor."""
+        std_type = (self.cfg.get("actor", {}).get("distribution_cfg") or {}).get("std_type", "scalar")
+        if std_type == "log":
+            return "+train.actor.distribution_cfg.std_range=[0.1,10.0]"
+        return "train.actor.distribution_cfg.std_type=log"
+
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,
                        skipped: int = 0, restored: str | None = None) -> None:
         env: RslRlVecEnv = self.env  # type: ignore[assignment]
@@ -282,8 +290,8 @@ class Runner(OnPolicyRunner):
                 print(f"[it {it + 1:>5}] the action noise has collapsed: {which} has a std of {c['std']:.4f} (mean "
                       f"over the actions {c['mean_std']:.3g}) while the adaptive learning rate sits at its floor "
                       f"({c['learning_rate']:.0e}), so each update spends the KL target on that action alone. If the "
-                      "curve flattens short of the goal, see the README's levers (e.g. "
-                      "+train.actor.distribution_cfg.std_range=[0.1,10.0])", flush=True)
+                      f"curve flattens short of the goal, see the README's levers (e.g. {self._noise_lever()})",
+                      flush=True)
         if writer is not None:
             for key, value in losses.items():
                 writer.add_scalar(f"Loss/{key}", value, it)
