@@ -2,8 +2,8 @@
 # On one host with as many GPUs as the largest count: the time to a solved task at one total number of envs split over
 # 1, 2 and 4 GPUs (torchrun, one simulator per GPU, the total envs divided among them).
 #   go1      Go1, 4096 envs in total, 400 iterations, a checkpoint every 25 iterations; afterwards every checkpoint
-#            is evaluated in test mode in iteration order (1024 episodes, one evaluation per GPU of the host side
-#            by side) until one meets the criterion. Solved: timeout_fraction >= 0.97 and lin_vel_tracking_error <= 0.25 m/s.
+#            is evaluated in test mode in iteration order (1024 episodes; EVALS_PER_GPU, default 4, evaluations
+#            side by side on each GPU of the host) until one meets the criterion. Solved: timeout_fraction >= 0.97 and lin_vel_tracking_error <= 0.25 m/s.
 #   allegro  AllegroHand, 8192 envs in total, BUDGET_S seconds of training (max_train_time_s, default 1500). Solved
 #            at 5 and at 10: IGE's consecutive_successes, the task's own running metric, read from summary.json's
 #            history.
@@ -25,7 +25,9 @@ case "$name" in
 esac
 # Go1's criterion, read by the early stop below and by the table at the end
 export SOLVED_TIMEOUT_FRACTION=0.97 SOLVED_TRACKING_ERROR=0.25
-host_gpus=$(nvidia-smi -L | wc -l)  # evaluations side by side: one per GPU, whatever the row's count
+# Evaluations side by side on every GPU of the host, whatever the row's count: each is mostly process start-up (about
+# 30 s, on the host's CPU), and 1024 Go1 worlds use little of a GPU.
+host_gpus=$(nvidia-smi -L | wc -l); side_by_side=$((host_gpus * ${EVALS_PER_GPU:-4}))
 go1_solved() {  # EVAL_LOG...: true when one of these test-mode evaluations meets the criterion
   python3 - "$@" <<'PY'
 import json, os, sys
@@ -47,13 +49,13 @@ for k in ${counts//,/ }; do
   timeout --preserve-status -s TERM $(( ${BUDGET_S:-1500} + 600 )) "${launch[@]}" task=$task headless=True \
     num_envs=$((total / k)) runs_dir="$run" "${seed_arg[@]}" "${train_args[@]}" "${overrides[@]}" > "$run.log" 2>&1
   echo "$task on $k GPU(s), seed $seed: exit $?" >> "$out/exits.txt"
-  if [ "$name" = go1 ]; then  # the checkpoints in test mode in iteration order, one per GPU, until one solves it
+  if [ "$name" = go1 ]; then  # the checkpoints in test mode in iteration order, side by side, until one solves it
     batch=()
     for ckpt in $(ls "$run"/"$task"/*/model_[0-9]*.pt | sort -V); do
-      CUDA_VISIBLE_DEVICES=${#batch[@]} python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
+      CUDA_VISIBLE_DEVICES=$(( ${#batch[@]} % host_gpus )) python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
         num_envs=1024 "${overrides[@]}" > "${ckpt%.pt}.eval.log" 2>&1 &
       batch+=("${ckpt%.pt}.eval.log")
-      if [ ${#batch[@]} = "$host_gpus" ]; then wait; go1_solved "${batch[@]}" && break; batch=(); fi
+      if [ ${#batch[@]} = "$side_by_side" ]; then wait; go1_solved "${batch[@]}" && break; batch=(); fi
     done
     wait
   fi
