@@ -116,6 +116,7 @@ def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(t
     (["seed=1,2", "sweep_eval=maybe"], "sweep_eval='maybe' is invalid"),
     (["train.algorithm.gamma=0.99,2"], "train.algorithm.gamma=2 is invalid"),  # the train YAML, in its last job
     (["seed=1,2", "checkpoint=missing.pt"], "checkpoint='missing.pt': no such file"),
+    (["test=False,True"], "test=True: a sweep trains"),  # in its last job, and named before the missing checkpoint
 ])
 def test_bad_input_in_any_job_is_one_line_before_any_job_runs(tmp_path, args, message):
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "-m", "task=Cartpole", *args, *CPU_ARGS,

@@ -95,10 +95,6 @@ def run_sweep(argv: list[str], train_script: Path) -> int:
     config_args, overrides = _split_config_args(argv)
     jobs_overrides, labels = expand(overrides)
     cfg = _compose(jobs_overrides[0], config_args)
-    if cfg.get("multi_gpu", False):
-        raise ConfigError("multi_gpu=True: a sweep runs its jobs one per GPU already; leave multi_gpu out of a sweep")
-    if cfg.get("test", False):
-        raise ConfigError("test=True: a sweep trains; evaluate each job's checkpoint with train.py test=True")
     for job in jobs_overrides[1:]:
         _compose(job, config_args)  # a bad value in any job is told now, not after the first jobs have trained
     metric = str(cfg.get("sweep_metric", "auto") or "auto")
@@ -159,7 +155,8 @@ def _split_config_args(argv: list[str]) -> tuple[list[str], list[str]]:
 
 
 def _compose(overrides: list[str], options: list[str]):
-    """The job's config, with its run-level keys and train YAML checked as train.py checks them."""
+    """The job's config, with what a sweep cannot run refused, then its run-level keys and train YAML checked as
+    train.py checks them."""
     from isaacgymenvs_mw.learning.train_config import check_before_start
     from isaacgymenvs_mw.utils.config import compose_config
 
@@ -170,6 +167,10 @@ def _compose(overrides: list[str], options: list[str]):
         elif option.startswith("--config-dir="):
             config_dir = option.split("=", 1)[1]
     cfg = compose_config(overrides, config_dir=config_dir)
+    if cfg.get("multi_gpu", False):
+        raise ConfigError("multi_gpu=True: a sweep runs its jobs one per GPU already; leave multi_gpu out of a sweep")
+    if cfg.get("test", False):
+        raise ConfigError("test=True: a sweep trains; evaluate each job's checkpoint with train.py test=True")
     check_before_start(cfg)
     return cfg
 
