@@ -3,7 +3,8 @@
 # 1, 2 and 4 GPUs (torchrun, one simulator per GPU, the total envs divided among them).
 #   go1      Go1, 4096 envs in total, 400 iterations, a checkpoint every 25 iterations; afterwards every checkpoint
 #            is evaluated in test mode in iteration order (1024 episodes; EVALS_PER_GPU, default 4, evaluations
-#            side by side on each GPU of the host) until one meets the criterion. Solved: timeout_fraction >= 0.97 and lin_vel_tracking_error <= 0.25 m/s.
+#            side by side on each GPU of the host) until one meets the criterion. Solved: timeout_fraction >= 0.97
+#            and lin_vel_tracking_error <= 0.25 m/s.
 #   allegro  AllegroHand, 8192 envs in total, BUDGET_S seconds of training (max_train_time_s, default 1500). Solved
 #            at 5 and at 10: IGE's consecutive_successes, the task's own running metric, read from summary.json's
 #            history.
@@ -52,8 +53,8 @@ for k in ${counts//,/ }; do
   if [ "$name" = go1 ]; then  # the checkpoints in test mode in iteration order, side by side, until one solves it
     batch=()
     for ckpt in $(ls "$run"/"$task"/*/model_[0-9]*.pt | sort -V); do
-      CUDA_VISIBLE_DEVICES=$(( ${#batch[@]} % host_gpus )) python3 train.py task=$task headless=True test=True checkpoint="$ckpt" \
-        num_envs=1024 "${overrides[@]}" > "${ckpt%.pt}.eval.log" 2>&1 &
+      CUDA_VISIBLE_DEVICES=$(( ${#batch[@]} % host_gpus )) python3 train.py task=$task headless=True test=True \
+        checkpoint="$ckpt" num_envs=1024 "${overrides[@]}" > "${ckpt%.pt}.eval.log" 2>&1 &
       batch+=("${ckpt%.pt}.eval.log")
       if [ ${#batch[@]} = "$side_by_side" ]; then wait; go1_solved "${batch[@]}" && break; batch=(); fi
     done
