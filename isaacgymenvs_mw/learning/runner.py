@@ -255,7 +255,7 @@ class Runner(OnPolicyRunner):
     def _noise_lever(self) -> str:
         """The override to try first against a collapse: the noise learned as a log (on AllegroHand no action's noise
         collapsed with it in two seeds, docs/PERFORMANCE.md), or, for a policy that has it already, a floor."""
-        std_type = (self.cfg.get("actor", {}).get("distribution_cfg") or {}).get("std_type", "scalar")
+        std_type = (self.cfg["actor"].get("distribution_cfg") or {}).get("std_type", "scalar")  # actor: checked
         if std_type == "log":
             return "+train.actor.distribution_cfg.std_range=[0.1,10.0]"
         return "train.actor.distribution_cfg.std_type=log"
