@@ -9,6 +9,7 @@ out here by hand), MuJoCo compiling the URDF on its own (joint order), importlib
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 from importlib import metadata
 
@@ -20,6 +21,7 @@ from omegaconf import OmegaConf
 
 import isaacgymenvs_mw
 from conftest import CPU_ARGS, REPO_ROOT
+from isaacgymenvs_mw.learning import export
 from isaacgymenvs_mw.learning.export import export_policy, read_metadata
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
@@ -174,6 +176,23 @@ def test_deploy_example_runs_and_reports_tracking_error(exported):
     assert result["task"] == "Go1"
     assert np.isfinite(result["lin_vel_tracking_error"]) and np.isfinite(result["yaw_rate_tracking_error"])
     assert result["min_base_height"] > 0.1  # started standing on the floor
+
+
+def test_an_export_that_fails_midway_leaves_the_previous_one_whole(exported, tmp_path, monkeypatch):
+    task, _, runner, out = exported
+    target = tmp_path / "exported"
+    shutil.copytree(out, target)
+    before = {p.name: p.read_bytes() for p in target.iterdir()}
+
+    def fail_after_one_file(runner, staging, task):
+        (staging / "policy.onnx").write_bytes(b"half an onnx file")
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(export, "_write_policy_files", fail_after_one_file)
+    with pytest.raises(RuntimeError, match="disk full"):
+        export_policy(runner, target, task=task)
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["exported"]  # its private folder is gone too
 
 
 def test_plain_task_policy_json_names_the_actuators_in_action_order(tmp_path):

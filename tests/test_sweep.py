@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
-from isaacgymenvs_mw.learning.sweep import SMOOTHING, expand, markdown_table, metric_key, summarise, visible_gpus
+from isaacgymenvs_mw.learning.sweep import (SMOOTHING, evaluation_outputs, expand, last_checkpoint, markdown_table,
+                                            metric_key, summarise, visible_gpus)
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
@@ -45,6 +46,25 @@ def reference_row(values: list[float]) -> tuple[float, float]:
 ])
 def test_a_sweep_hands_each_job_one_of_the_gpus_its_parent_was_given(parent, count, jobs):
     assert visible_gpus(parent, count) == jobs
+
+
+def test_test_mode_names_its_outputs_after_the_checkpoint_unless_it_is_the_runs_last(tmp_path):
+    run_dir = tmp_path / "Cartpole" / "stamp"
+    run_dir.mkdir(parents=True)
+    for name in ("model_9.pt", "model_10.pt", "model_12_interrupted.pt", "model_best.pt"):
+        (run_dir / name).touch()
+
+    def names(checkpoint: str) -> list[str]:
+        return [p.name for p in evaluation_outputs(run_dir / checkpoint)]
+
+    assert names("model_12_interrupted.pt") == ["eval.json", "exported", "videos_eval"]
+    # by iteration number, not by text: model_9 comes before model_10
+    assert names("model_10.pt") == ["eval_model_10.json", "exported_model_10", "videos_eval_model_10"]
+    assert names("model_9.pt") == ["eval_model_9.json", "exported_model_9", "videos_eval_model_9"]
+    assert names("model_best.pt") == ["eval_best.json", "exported_best", "videos_eval_best"]
+    assert last_checkpoint(tmp_path) == run_dir / "model_12_interrupted.pt"  # what a sweep evaluates: eval.json
+    (run_dir / "model_12_interrupted.pt").unlink()
+    assert names("model_10.pt") == ["eval.json", "exported", "videos_eval"]
 
 
 def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_metric():

@@ -448,6 +448,28 @@ def test_checkpoint_of_another_task_names_both_sizes(trained_cartpole, tmp_path,
     assert sorted(p.name for p in ckpt.parent.iterdir()) == ["model_2.pt"]
 
 
+def test_each_checkpoint_of_a_run_keeps_its_own_test_mode_results(trained_cartpole, tmp_path):
+    # A run folder with an earlier and a last checkpoint (copies of one policy: only their names matter here).
+    folder = (tmp_path / "run").resolve()
+    folder.mkdir()
+    for name in ("model_1.pt", "model_2.pt"):
+        shutil.copy(trained_cartpole, folder / name)
+    run(compose_config(cartpole_args(tmp_path / "runs", "test=True", f"checkpoint={folder / 'model_1.pt'}")))
+    earlier = json.loads((folder / "eval_model_1.json").read_text())
+    assert earlier["checkpoint"] == str(folder / "model_1.pt")
+    assert (folder / "exported_model_1" / "policy.onnx").is_file()
+    assert not (folder / "eval.json").exists() and not (folder / "exported").exists()
+
+    run(compose_config(cartpole_args(tmp_path / "runs", "test=True", f"checkpoint={folder / 'model_2.pt'}")))
+    assert json.loads((folder / "eval.json").read_text())["checkpoint"] == str(folder / "model_2.pt")
+    assert json.loads((folder / "eval_model_1.json").read_text()) == earlier  # the earlier result stays
+    # nothing half-written or private is left beside them
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "eval.json", "eval_model_1.json", "exported", "exported_model_1", "model_1.pt", "model_2.pt"]
+    assert sorted(p.name for p in (folder / "exported").iterdir()) == [
+        "model.mjb", "policy.json", "policy.onnx", "policy.pt"]
+
+
 # ------------------------------------------------------------------------------------------ 7. viewer fallback
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="display detection is the Linux path")
 def test_headless_false_without_display_says_so_once_and_trains(tmp_path, monkeypatch, capsys):

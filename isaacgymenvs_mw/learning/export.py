@@ -13,6 +13,9 @@ robot runtime needs (docs/deploy.md).
 from __future__ import annotations
 
 import json
+import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -42,10 +45,23 @@ def policy_metadata(task) -> dict[str, Any]:
 def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Path, Path]:
     """Write ``policy.onnx`` and ``policy.pt`` (and, given the task, their metadata and ``model.mjb``).
 
-    Both map raw observations, as the task returns them (history stacked), to the deterministic (mean) action.
+    Both map raw observations, as the task returns them (history stacked), to the deterministic (mean) action. The
+    files are written in a private folder beside ``out_dir`` and then moved in, so a file in ``out_dir`` is always
+    whole, also while another process exports into it.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        _write_policy_files(runner, staging, task)
+        for written in sorted(staging.iterdir()):
+            os.replace(written, out_dir / written.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return out_dir / "policy.onnx", out_dir / "policy.pt"
+
+
+def _write_policy_files(runner: OnPolicyRunner, out_dir: Path, task) -> None:
     onnx_path, jit_path = out_dir / "policy.onnx", out_dir / "policy.pt"
     model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
     # An image policy (learning/models.py) has one more input per image group, named after it ("camera").
@@ -64,7 +80,6 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Pat
         jit = torch.jit.load(str(jit_path), map_location="cpu")
         torch.jit.save(jit, str(jit_path), _extra_files={METADATA_FILE: text})
         task.sim.save_model(str(out_dir / "model.mjb"))
-    return onnx_path, jit_path
 
 
 def _add_onnx_metadata(path: Path, metadata: dict[str, Any]) -> None:

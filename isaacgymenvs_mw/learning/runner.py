@@ -516,5 +516,8 @@ def evaluate(task, policy, device: str) -> dict:
 
 
 def write_json(path: Path, data: dict) -> None:
+    """Write ``data`` as JSON whole or not at all: a reader, or a process writing the same file, never sees half."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    partial.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
+    os.replace(partial, path)

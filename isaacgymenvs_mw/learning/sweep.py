@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from isaacgymenvs_mw.utils.config import checkpoint_iteration
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 SMOOTHING = 10  # iterations averaged into a point of the final/best comparison
@@ -46,10 +47,18 @@ BEST_CHECKPOINT = "model_best.pt"  # save_best's copy of the best saved checkpoi
 
 
 def evaluation_outputs(checkpoint: Path) -> tuple[Path, Path, Path]:
-    """Where test mode writes beside ``checkpoint``: eval.json, exported/ and videos_eval/; for the best checkpoint
-    eval_best.json, exported_best/ and videos_eval_best/, so that evaluating it keeps the last checkpoint's."""
-    suffix = "_best" if checkpoint.name == BEST_CHECKPOINT else ""
+    """Where test mode writes beside ``checkpoint``: its eval JSON, its exported/ folder and its videos folder.
+
+    The run's last checkpoint (none of a later iteration beside it), or one of another name, writes eval.json,
+    exported/ and videos_eval/; the best (save_best) eval_best.json, exported_best/ and videos_eval_best/; an earlier
+    checkpoint its own, e.g. eval_model_100.json, exported_model_100/ and videos_eval_model_100/. So evaluating several
+    checkpoints of one run, one after another or side by side, keeps each one's results and never mixes two policies.
+    """
     folder = checkpoint.parent
+    iteration = checkpoint_iteration(checkpoint.name)
+    later = iteration is not None and any((checkpoint_iteration(p.name) or -1) > iteration
+                                          for p in folder.glob("model_*.pt"))
+    suffix = "_best" if checkpoint.name == BEST_CHECKPOINT else f"_{checkpoint.stem}" if later else ""
     return folder / f"eval{suffix}.json", folder / f"exported{suffix}", folder / f"videos_eval{suffix}"
 
 
@@ -241,11 +250,8 @@ def checkpoints_to_evaluate(runs_dir: Path) -> list[Path]:
 
 def last_checkpoint(runs_dir: Path) -> Path | None:
     """The checkpoint of the highest iteration a job's run wrote (its final or interrupted one), or None."""
-    found = []
-    for path in runs_dir.glob("*/*/model_*.pt"):
-        number = path.stem.split("_")[1]
-        if number.isdigit():
-            found.append((int(number), path))
+    found = [(checkpoint_iteration(p.name), p) for p in runs_dir.glob("*/*/model_*.pt")]
+    found = [(iteration, path) for iteration, path in found if iteration is not None]
     return max(found)[1] if found else None
 
 

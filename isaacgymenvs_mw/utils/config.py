@@ -197,6 +197,15 @@ def cpu_threads(value) -> int:
                           f"{os.cpu_count()} cores)") from None
 
 
+CHECKPOINT_NAME = re.compile(r"model_(\d+)(?:_interrupted)?\.pt")  # saved at an iteration (learning/runner.py)
+
+
+def checkpoint_iteration(name: str) -> int | None:
+    """The iteration in a checkpoint's file name (model_400.pt, model_212_interrupted.pt), or None (model_best.pt)."""
+    match = CHECKPOINT_NAME.fullmatch(name)
+    return None if match is None else int(match.group(1))
+
+
 def checkpoint_path(cfg: DictConfig) -> Path | None:
     """``checkpoint=`` as an existing file (None when not given, which test mode refuses); its contents are read by
     the launcher, which has torch."""
@@ -206,8 +215,8 @@ def checkpoint_path(cfg: DictConfig) -> Path | None:
         return None
     path = Path(str(cfg.checkpoint)).expanduser().resolve()
     if path.is_dir():  # a run directory: name the file wanted, and the run's latest when it holds any
-        numbered = ((f, re.fullmatch(r"model_(\d+)", f.stem)) for f in path.glob("model_*.pt"))
-        iteration = {f: int(m.group(1)) for f, m in numbered if m}  # by number: model_9 comes before model_10
+        numbered = {f: checkpoint_iteration(f.name) for f in path.glob("model_*.pt")}
+        iteration = {f: n for f, n in numbered.items() if n is not None}  # by number: model_9 comes before model_10
         hint = f"its latest: checkpoint={max(iteration, key=iteration.get)}" if iteration else "none is in it"
         raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is a directory; give a model_*.pt file written by "
                           f"a training run ({hint})")
