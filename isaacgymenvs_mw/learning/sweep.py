@@ -38,7 +38,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from isaacgymenvs_mw.utils.config import checkpoint_iteration
+from isaacgymenvs_mw.utils.config import checkpoint_iteration, latest_checkpoint
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 SMOOTHING = 10  # iterations averaged into a point of the final/best comparison
@@ -55,9 +55,8 @@ def evaluation_outputs(checkpoint: Path) -> tuple[Path, Path, Path]:
     checkpoints of one run, one after another or side by side, keeps each one's results and never mixes two policies.
     """
     folder = checkpoint.parent
-    iteration = checkpoint_iteration(checkpoint.name)
-    later = iteration is not None and any((checkpoint_iteration(p.name) or -1) > iteration
-                                          for p in folder.glob("model_*.pt"))
+    iteration, latest = checkpoint_iteration(checkpoint.name), latest_checkpoint(folder.glob("model_*.pt"))
+    later = iteration is not None and latest is not None and checkpoint_iteration(latest.name) > iteration
     suffix = "_best" if checkpoint.name == BEST_CHECKPOINT else f"_{checkpoint.stem}" if later else ""
     return folder / f"eval{suffix}.json", folder / f"exported{suffix}", folder / f"videos_eval{suffix}"
 
@@ -250,9 +249,7 @@ def checkpoints_to_evaluate(runs_dir: Path) -> list[Path]:
 
 def last_checkpoint(runs_dir: Path) -> Path | None:
     """The checkpoint of the highest iteration a job's run wrote (its final or interrupted one), or None."""
-    found = [(checkpoint_iteration(p.name), p) for p in runs_dir.glob("*/*/model_*.pt")]
-    found = [(iteration, path) for iteration, path in found if iteration is not None]
-    return max(found)[1] if found else None
+    return latest_checkpoint(runs_dir.glob("*/*/model_*.pt"))
 
 
 def _start(job: Job, options: list[str], train_script: Path, evaluate: Path | None = None) -> None:

@@ -7,7 +7,7 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import MissingMandatoryValue
@@ -206,6 +206,12 @@ def checkpoint_iteration(name: str) -> int | None:
     return None if match is None else int(match.group(1))
 
 
+def latest_checkpoint(paths: Iterable[Path]) -> Path | None:
+    """The checkpoint of the highest iteration among ``paths`` (by number: model_9 comes before model_10), or None."""
+    numbered = [(n, p) for p in paths if (n := checkpoint_iteration(p.name)) is not None]
+    return max(numbered)[1] if numbered else None
+
+
 def checkpoint_path(cfg: DictConfig) -> Path | None:
     """``checkpoint=`` as an existing file (None when not given, which test mode refuses); its contents are read by
     the launcher, which has torch."""
@@ -215,9 +221,8 @@ def checkpoint_path(cfg: DictConfig) -> Path | None:
         return None
     path = Path(str(cfg.checkpoint)).expanduser().resolve()
     if path.is_dir():  # a run directory: name the file wanted, and the run's latest when it holds any
-        numbered = {f: checkpoint_iteration(f.name) for f in path.glob("model_*.pt")}
-        iteration = {f: n for f, n in numbered.items() if n is not None}  # by number: model_9 comes before model_10
-        hint = f"its latest: checkpoint={max(iteration, key=iteration.get)}" if iteration else "none is in it"
+        latest = latest_checkpoint(path.glob("model_*.pt"))
+        hint = f"its latest: checkpoint={latest}" if latest else "none is in it"
         raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is a directory; give a model_*.pt file written by "
                           f"a training run ({hint})")
     if not path.is_file():
