@@ -31,6 +31,8 @@ INSTALL_REQUIRES = [
     "matplotlib>=3.7",
 ]
 
+RL_GAMES = "rl-games>=1.6.5,<1.7"
+
 setup(
     name="isaacgymenvs_mw",
     version=VERSION,
@@ -38,7 +40,9 @@ setup(
     packages=find_packages(include=["isaacgymenvs_mw", "isaacgymenvs_mw.*"]),
     python_requires=">=3.10,<3.13",
     install_requires=INSTALL_REQUIRES,
-    # onnxruntime: the exported-policy test
-    extras_require={"test": ["pytest>=7", "onnxruntime>=1.17"]},
+    # rl_games: IsaacGymEnvs' learner, the second learner (learner=rl_games); 1.6.5 is the first release that installs
+    # on Python 3.11 and 3.12 (earlier ones pin gym). onnxruntime: the exported-policy test.
+    extras_require={"rl_games": [RL_GAMES],
+                    "test": ["pytest>=7", "onnxruntime>=1.17", RL_GAMES]},
     license="BSD-3-Clause",
 )

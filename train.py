@@ -81,8 +81,14 @@ def sweep(argv: list[str]) -> None:
 
 if __name__ == "__main__":
     try:
+        with exit_on_input_error():
+            from isaacgymenvs_mw.utils.config import take_config_dirs, with_learner_default
+
+            sys.argv[1:] = with_learner_default(sys.argv[1:])  # learner=rl_games: its train YAML by default
         if {"-m", "--multirun"} & set(sys.argv[1:]):
             sweep([arg for arg in sys.argv[1:] if arg not in ("-m", "--multirun")])
+        with exit_on_input_error():
+            sys.argv[1:] = take_config_dirs(sys.argv[1:])  # searched before cfg/, so that your files win
         with report_input_errors():
             main()
     except KeyboardInterrupt as stop:  # while Hydra composed the config, before main() began

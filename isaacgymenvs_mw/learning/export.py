@@ -63,7 +63,11 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Pat
 
 def _write_policy_files(runner: OnPolicyRunner, out_dir: Path, task) -> None:
     onnx_path, jit_path = out_dir / "policy.onnx", out_dir / "policy.pt"
-    model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
+    policy_module = getattr(runner, "policy_module", None)  # a runner of another learner (rl_games) gives its own
+    if policy_module is not None:
+        model = policy_module().to("cpu").eval()  # a copy: the runner's own stays where it is
+    else:
+        model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
     # An image policy (learning/models.py) has one more input per image group, named after it ("camera").
     inputs = list(getattr(model, "input_names", ["obs"]))
     with torch.no_grad():
@@ -71,7 +75,11 @@ def _write_policy_files(runner: OnPolicyRunner, out_dir: Path, task) -> None:
             model, model.get_dummy_inputs(), str(onnx_path), input_names=inputs, output_names=["actions"],
             dynamic_axes={name: {0: "batch"} for name in [*inputs, "actions"]}, opset_version=18, dynamo=False,
         )
-    runner.export_policy_to_jit(str(out_dir), filename=jit_path.name)
+    if policy_module is not None:
+        with torch.no_grad():
+            torch.jit.trace(model, model.get_dummy_inputs()).save(str(jit_path))
+    else:
+        runner.export_policy_to_jit(str(out_dir), filename=jit_path.name)
     if task is not None:
         metadata = policy_metadata(task)
         text = json.dumps(metadata, indent=2)

@@ -24,7 +24,10 @@ from isaacgymenvs_mw.learning.runner import (
     rsl_rl_config,
     write_json,
 )
+from isaacgymenvs_mw.learning.rl_games_config import is_rl_games_config
 from isaacgymenvs_mw.learning.sweep import evaluation_outputs
+from isaacgymenvs_mw.learning.train_config import check_train_config
+from isaacgymenvs_mw.learning.training_run import TrainingRun
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
 from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, checkpoint_path, time_budget, to_dict
@@ -44,17 +47,38 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         cfg.seed = seed - rank  # the base seed; seed_run adds the rank
         if rank == 0:
             print(f"[train] seed=-1 drew seed {cfg.seed} (give seed={cfg.seed} to repeat this run)", flush=True)
-    train_cfg = rsl_rl_config(to_dict(cfg.train))
-    if not cfg.test:
-        check_logger(train_cfg)
-    checkpoint, saved = _read_checkpoint(cfg)
+    rl_games = is_rl_games_config(cfg.train)
+    if rl_games:
+        check_train_config(to_dict(cfg.train), cfg.get("learner"))
+    else:
+        train_cfg = rsl_rl_config(to_dict(cfg.train))
+        if not cfg.test:
+            check_logger(train_cfg)
+    checkpoint, saved = _read_checkpoint(cfg, learner="rl_games" if rl_games else "rsl_rl")
     if not cfg.test and rank == 0:
         check_runs_dir(cfg.runs_dir)
 
     task = _build_with_notice(cfg)
-    env = RslRlVecEnv(task)
-    experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
-    max_iterations = int(train_cfg.pop("max_iterations"))
+    if rl_games:  # deferred: rl_games is an optional extra, imported only by its runs
+        from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
+
+        params = rl_games_params(cfg, task)
+        experiment = str(params["config"]["name"] or cfg.experiment or cfg.task_name)
+        max_iterations = int(params["config"].get("max_epochs", -1))
+        if max_iterations < 0:
+            raise ConfigError(f"train.params.config.max_epochs={max_iterations} is invalid: give the iterations to "
+                              "train (or max_iterations=N on the command line)")
+        env = RlGamesVecEnv(task)
+
+        def make_runner():
+            return RlGamesRunner(env, params, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
+    else:
+        env = RslRlVecEnv(task)
+        experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
+        max_iterations = int(train_cfg.pop("max_iterations"))
+
+        def make_runner():
+            return Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     run_dir = Path(cfg.runs_dir) / experiment / stamp
     is_main = rank == 0
@@ -64,7 +88,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         eval_path, exported, videos_dir = evaluation_outputs(checkpoint)
         if videos:
             _attach_video_recorder(cfg, task, videos_dir)
-        runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
+        runner = make_runner()
         load_checkpoint(runner, checkpoint, task, saved)
         policy = runner.get_inference_policy(device=task.rl_device)
         onnx_path, jit_path = export_policy(runner, exported, task=task)
@@ -79,7 +103,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         _leave_process_group(runner)
         return result
 
-    runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
+    runner = make_runner()
     if checkpoint is not None:
         load_checkpoint(runner, checkpoint, task, saved)
         print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
@@ -102,9 +126,8 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
               f"{max_iterations} iterations{f' or {budget:g} s of training' if budget else ''}, run dir {run_dir}",
               flush=True)
         try:
-            runner.learn(max_iterations,
-                         init_at_random_ep_len=bool(cfg.train.runner.get("init_at_random_ep_len", False)),
-                         max_train_time_s=budget)
+            random_start = False if rl_games else bool(cfg.train.runner.get("init_at_random_ep_len", False))
+            runner.learn(max_iterations, init_at_random_ep_len=random_start, max_train_time_s=budget)
         except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): Runner.learn has saved the model
             interrupted = err
         summary = _summary(cfg, task, runner, seed, start_it, started_at, run_dir, interrupted)
@@ -118,7 +141,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     return summary
 
 
-def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, started_at: float, run_dir: Path,
+def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start_it: int, started_at: float, run_dir: Path,
              interrupted: KeyboardInterrupt | None) -> dict:
     """What summary.json holds: the run's final metrics, throughput, learner health, device and versions."""
     wall = time.perf_counter() - started_at
@@ -154,7 +177,7 @@ def _summary(cfg: DictConfig, task, runner: Runner, seed: int, start_it: int, st
     }
 
 
-def _report_end(summary: dict, runner: Runner, run_dir: Path, interrupted: KeyboardInterrupt | None) -> None:
+def _report_end(summary: dict, runner: TrainingRun, run_dir: Path, interrupted: KeyboardInterrupt | None) -> None:
     write_json(run_dir / "summary.json", summary)
     ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
     print(f"[train] {ended} {summary['wall_time_s']:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
@@ -208,10 +231,10 @@ def _signal_number(err: KeyboardInterrupt) -> int:
     return int(getattr(err, "signum", signal.SIGINT))
 
 
-def _leave_process_group(runner: Runner) -> None:
+def _leave_process_group(runner: TrainingRun) -> None:
     """multi_gpu=True: rsl-rl-lib's runner joined a NCCL group; leaving it lets each rank exit without NCCL's leak
     warning. A captured update holds NCCL work that would make leaving hang, so it is freed first."""
-    release_graph = getattr(runner.alg, "release_graph", None)  # SyncFreePPO; rsl-rl-lib's PPO captures nothing
+    release_graph = getattr(getattr(runner, "alg", None), "release_graph", None)  # SyncFreePPO; rsl-rl-lib's PPO captures nothing
     if release_graph is not None:
         release_graph()
     if torch.distributed.is_available() and torch.distributed.is_initialized():
@@ -245,8 +268,9 @@ def _new_run_dir(path: Path) -> Path:
             candidate = path.with_name(f"{path.name}_{n}")
 
 
-def _read_checkpoint(cfg: DictConfig) -> tuple[Path | None, dict | None]:
-    """``checkpoint=`` as a path and its contents (on the CPU), read before the simulator is built."""
+def _read_checkpoint(cfg: DictConfig, learner: str = "rsl_rl") -> tuple[Path | None, dict | None]:
+    """``checkpoint=`` as a path and its contents (on the CPU), read before the simulator is built; ``learner``: the
+    library whose checkpoints the run reads (rl_games' hold their network as "model")."""
     path = checkpoint_path(cfg)
     if path is None:
         return None, None
@@ -256,17 +280,24 @@ def _read_checkpoint(cfg: DictConfig) -> tuple[Path | None, dict | None]:
         reason = one_line(str(err)).split(". ")[0]
         raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is not a readable checkpoint (truncated or not "
                           f"written by torch.save: {reason}); give a model_*.pt of a training run") from err
-    if not isinstance(state, dict) or "actor_state_dict" not in state:
-        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} holds no policy (no actor_state_dict); give a "
-                          "model_*.pt of a training run")
+    wanted = "model" if learner == "rl_games" else "actor_state_dict"
+    if not isinstance(state, dict) or wanted not in state:
+        other = {"model": "rl_games", "actor_state_dict": "rsl_rl"}
+        written_by = next((f"; it was written by learner={name}" for key, name in other.items()
+                           if isinstance(state, dict) and key in state), "")
+        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} holds no {learner} policy (no {wanted}){written_by}; "
+                          f"give a model_*.pt of a training run with learner={learner}")
     return path, state
 
 
-def load_checkpoint(runner: Runner, checkpoint: Path, task, state: dict | None = None) -> None:
+def load_checkpoint(runner: TrainingRun, checkpoint: Path, task, state: dict | None = None) -> None:
     """Load a checkpoint after checking that its policy fits this task's observation and action sizes; ``state``:
     the file's contents when the caller has read them already (only their shapes are used here)."""
     if state is None:
         state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    if hasattr(runner, "load_checkpoint"):  # RlGamesRunner checks and loads its own
+        runner.load_checkpoint(checkpoint, task, state)
+        return
     actor = state.get("actor_state_dict", {})
     weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
     if weights:

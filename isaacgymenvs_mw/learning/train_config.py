@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
+from isaacgymenvs_mw.learning.rl_games_config import check_rl_games_config, is_rl_games_config
 from isaacgymenvs_mw.utils.config import boolean, check_run_config, checkpoint_path, real_number, to_dict, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -38,11 +39,20 @@ def check_before_start(cfg: DictConfig) -> None:
     about 4 s), so that a mistyped value is told at once; the launcher makes them again for its own callers."""
     check_run_config(cfg)
     checkpoint_path(cfg)
-    check_train_config(to_dict(cfg.train))
+    check_train_config(to_dict(cfg.train), cfg.get("learner"))
 
 
-def check_train_config(train_cfg: dict) -> None:
-    """Fail on train YAML values of the wrong kind or range, naming ``train.<section>.<key>``, before rsl_rl runs."""
+def check_train_config(train_cfg: dict, learner: str | None = None) -> None:
+    """Fail on train YAML values of the wrong kind or range, naming ``train.<section>.<key>``, before rsl_rl runs.
+    An rl_games YAML (``params:``) is checked by its own schema; ``learner`` (the run key) must agree with the
+    YAML when it is rl_games."""
+    if is_rl_games_config(train_cfg):
+        check_rl_games_config(train_cfg)
+        return
+    if learner == "rl_games":
+        raise ConfigError("learner=rl_games, but the train YAML is rsl-rl-lib's (runner/algorithm/actor/critic): give "
+                          "an rl_games YAML (params: ...) as train=<name>, or leave train= out for the task's "
+                          "cfg/train/rl_games/<Task>PPO.yaml")
     missing = [s for s in TRAIN_SECTIONS if s not in train_cfg]
     if missing:
         raise ConfigError(f"train config lacks section(s) {missing}; expected {list(TRAIN_SECTIONS)}")

@@ -94,6 +94,21 @@ class EpisodeStats:
         return out
 
 
+def record_step(stats: EpisodeStats, task: VecTask, rew: torch.Tensor, reset: torch.Tensor, extras: dict) -> None:
+    """Add one env step's outcome to ``stats``: episode returns and lengths, time-outs, the task's reward terms and
+    declared metrics (every learner's env adapter calls this after ``task.step``)."""
+    # "time_outs" also holds the successes, which the learner bootstraps alike; the statistics count time-outs.
+    time_outs = extras["time_outs"] & ~extras["successes"] if "successes" in extras else extras["time_outs"]
+    stats.record(rew, reset, time_outs, extras["nonfinite_resets"])
+    if "episode_terms" in extras:  # tasks that report them set them every step
+        stats.add_terms(extras["episode_terms"])
+    sums, running = task.metrics.recorded(EPISODE_SUM), task.metrics.recorded(RUNNING)
+    if sums:  # e.g. the terrain curriculum's level
+        stats.add_terms(sums, group=METRIC_GROUP.rstrip("/"))
+    if running:
+        stats.set_running(running, group=METRIC_GROUP.rstrip("/"))
+
+
 class RslRlVecEnv(VecEnv):
     """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs), 'critic' (states; obs if numStates is 0) and,
     for a task with image terms, 'camera' ((num_envs, C, H, W) uint8; ``learning/models.py`` scales it)."""
@@ -130,16 +145,7 @@ class RslRlVecEnv(VecEnv):
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         obs_dict, rew, reset, extras = self.task.step(actions)
         self._obs = self._to_tensordict(obs_dict)
-        # "time_outs" also holds the successes, which the learner bootstraps alike; the statistics count time-outs.
-        time_outs = extras["time_outs"] & ~extras["successes"] if "successes" in extras else extras["time_outs"]
-        self.stats.record(rew, reset, time_outs, extras["nonfinite_resets"])
-        if "episode_terms" in extras:  # tasks that report them set them every step
-            self.stats.add_terms(extras["episode_terms"])
-        sums, running = self.task.metrics.recorded(EPISODE_SUM), self.task.metrics.recorded(RUNNING)
-        if sums:  # e.g. the terrain curriculum's level
-            self.stats.add_terms(sums, group=METRIC_GROUP.rstrip("/"))
-        if running:
-            self.stats.set_running(running, group=METRIC_GROUP.rstrip("/"))
+        record_step(self.stats, self.task, rew, reset, extras)
         return self._obs, rew, reset, extras
 
     def close(self) -> None:

@@ -36,25 +36,99 @@ def register_resolvers() -> None:
 
 register_resolvers()
 
+# Folders given to compose_config(config_dir=...), searched before cfg/ as --config-dir is (see _UserConfigFirst).
+_EXTRA_CONFIG_DIRS: list[str] = []
+
+
+def _register_user_config_first() -> None:
+    """Make a folder given with ``--config-dir`` (or ``compose_config(config_dir=...)``) searched before the project's
+    cfg/. Hydra searches cfg/ first, so a user's ``train/AntPPO.yaml`` (IsaacGymEnvs' rl_games YAML, say) would be
+    silently replaced by the project's file of the same name; with this, the user's file is the one used."""
+    from hydra.core.config_search_path import ConfigSearchPath
+    from hydra.core.plugins import Plugins
+    from hydra.plugins.search_path_plugin import SearchPathPlugin
+
+    class UserConfigFirst(SearchPathPlugin):
+        def manipulate_search_path(self, search_path: ConfigSearchPath) -> None:
+            path = search_path.get_path()
+            main = next((i for i, e in enumerate(path) if e.provider == "main"), None)
+            if main is None:
+                return
+            for folder in _EXTRA_CONFIG_DIRS:
+                search_path.append("command-line", f"file://{folder}")
+            users = [e for e in path if e.provider == "command-line"]
+            rest = [e for e in path if e.provider != "command-line"]
+            main = next(i for i, e in enumerate(rest) if e.provider == "main")
+            path[:] = rest[:main] + users + rest[main:]
+
+    UserConfigFirst.__module__ = __name__
+    UserConfigFirst.__qualname__ = "UserConfigFirst"
+    Plugins.instance().register(UserConfigFirst)
+
+
+_register_user_config_first()
+
+
+LEARNERS = ("rsl_rl", "rl_games")  # the run key `learner`: which library trains (docs/config.md#learners)
+
+
+def with_learner_default(overrides: Sequence[str]) -> list[str]:
+    """``learner=rl_games`` without ``train=``: the task's shipped rl_games recipe, ``cfg/train/rl_games/<Task>PPO``
+    (Hydra's defaults list cannot depend on a plain key, so the choice is added as an override). A bad value of
+    ``learner`` fails naming it; the train YAML's own schema is checked against it later (learning/train_config.py)."""
+    overrides = list(overrides)
+    learner = [o.split("=", 1)[1] for o in overrides if o.startswith("learner=")]
+    if not learner:
+        return overrides
+    if learner[-1] not in LEARNERS:
+        raise ConfigError(f"learner={learner[-1]!r} is invalid: choose one of {list(LEARNERS)}")
+    if learner[-1] == "rl_games" and not any(o.split("=", 1)[0].lstrip("+~") == "train" for o in overrides):
+        overrides.append("train=rl_games/${task}PPO")
+    return overrides
+
+
+def take_config_dirs(argv: Sequence[str]) -> list[str]:
+    """``argv`` without its ``--config-dir D`` / ``-cd D`` options, whose folders are searched before cfg/ from now on
+    in this process (Hydra would search them after it: see _register_user_config_first)."""
+    rest, args = [], list(argv)
+    while args:
+        arg = args.pop(0)
+        if arg in ("--config-dir", "-cd") and args:
+            folder = args.pop(0)
+        elif arg.startswith("--config-dir="):
+            folder = arg.split("=", 1)[1]
+        else:
+            rest.append(arg)
+            continue
+        path = Path(folder).expanduser().resolve()
+        if not path.is_dir():
+            raise MissingFileError(f"--config-dir {folder}: no such folder ({path}); give the folder that holds your "
+                                   "task/ and train/ YAMLs")
+        _EXTRA_CONFIG_DIRS.append(str(path))
+    return rest
+
 
 def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None = None) -> DictConfig:
     """The same config train.py would see for these command-line overrides (e.g. ['task=Cartpole', 'num_envs=8']).
 
-    ``config_dir``: a folder of your own with ``task/<Name>.yaml`` and ``train/<Name>PPO.yaml``, searched after the
-    repository's ``cfg/`` (as ``python train.py --config-dir <dir>`` or ``hydra.searchpath=[file://<dir>]`` does).
+    ``config_dir``: a folder of your own with ``task/<Name>.yaml`` and ``train/<Name>PPO.yaml``, searched before the
+    repository's ``cfg/`` (as ``python train.py --config-dir <dir>`` is).
     """
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    overrides = list(overrides)
+    overrides = with_learner_default(overrides)
     if config_dir is not None:
         folder = Path(config_dir).expanduser().resolve()
         if not folder.is_dir():
             raise MissingFileError(f"config_dir '{config_dir}' is not a folder (it should hold task/ and train/)")
-        overrides.append(f"hydra.searchpath=[file://{folder}]")
+        _EXTRA_CONFIG_DIRS.append(str(folder))
     GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CFG_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    try:
+        with initialize_config_dir(config_dir=str(CFG_DIR), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+    finally:
+        _EXTRA_CONFIG_DIRS.clear()
     record_task_dir(cfg, cfg.hydra)
     with open_dict(cfg):
         del cfg["hydra"]  # train.py's config has no hydra node either
@@ -152,7 +226,7 @@ _RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "mu
                  "sweep_eval", "save_best")
 _RUN_WHOLE_NUMBERS = {"num_envs": 1, "max_iterations": 0, "seed": -1, "graphics_device_id": -1,
                       "capture_video_freq": 1, "capture_video_len": 1}
-_RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device", "sweep_metric")
+_RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device", "sweep_metric", "learner")
 _RUN_NONEMPTY = ("runs_dir", "sim_device", "rl_device", "sweep_metric")
 
 
@@ -167,6 +241,8 @@ def check_run_config(cfg: DictConfig) -> None:
             boolean(cfg[key], key)
     cpu_threads(cfg.get("cpu_threads", 1))
     time_budget(cfg.get("max_train_time_s", ""))
+    if cfg.get("learner", "rsl_rl") not in LEARNERS:
+        raise ConfigError(f"learner={cfg.learner!r} is invalid: choose one of {list(LEARNERS)}")
     for key in _RUN_TEXT:
         value = cfg.get(key, "")
         if not isinstance(value, str) or (key in _RUN_NONEMPTY and not value.strip()):

@@ -1,0 +1,399 @@
+"""Training and evaluation with rl_games (IsaacGymEnvs' own learner), configured by an rl_games train YAML:
+``cfg/train/rl_games/<Task>PPO.yaml`` (``learner=rl_games``) or one written for IsaacGymEnvs, given as ``train=<name>``.
+
+rl_games' ``A2CAgent`` collects a rollout and updates the policy (its ``train_epoch``: PPO, its KL-adaptive
+learning rate, normalisers and losses, unchanged); the loop around it is this project's (``training_run.py``), so a
+rl_games run has the run folder, checkpoints (periodic, interrupted, best), progress line, TensorBoard scalars,
+summary.json, stop requests and learner guard of an rsl-rl-lib run. The env side is the same VecTask step.
+
+Which keys of the YAML are read, and which are refused: learning/rl_games_config.py and docs/config.md.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import io
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+import torch
+from omegaconf import DictConfig
+
+from isaacgymenvs_mw.learning.guard import LearnerGuard
+from isaacgymenvs_mw.learning.loggers import make_writer
+from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config
+from isaacgymenvs_mw.learning.training_run import TrainingRun, _FirstCollectProgress, keep_stop_handler
+from isaacgymenvs_mw.learning.vecenv import EpisodeStats, record_step
+from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.utils.config import to_dict
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
+    """The checked ``train.params`` of the run, with what the run decides (envs, device, multi-GPU) put in."""
+    train_cfg = to_dict(cfg.train)
+    check_rl_games_config(train_cfg)
+    params = train_cfg["params"]
+    config = params["config"]
+    if "seed" in params and params["seed"] not in (None, "") and int(params["seed"]) != int(cfg.seed):
+        raise ConfigError(f"train.params.seed={params['seed']} differs from the run's seed={cfg.seed}: the run key "
+                          "seeds the run (IsaacGymEnvs' YAMLs write seed: ${...seed})")
+    load_path = params.get("load_path") or ""
+    if load_path and Path(str(load_path)).expanduser().resolve() != Path(str(cfg.checkpoint)).expanduser().resolve():
+        raise ConfigError(f"train.params.load_path={load_path!r} differs from the run's checkpoint="
+                          f"{cfg.checkpoint!r}: the run key names the checkpoint (IsaacGymEnvs' YAMLs write "
+                          "load_path: ${...checkpoint})")
+    actors = config.get("num_actors", task.num_envs)
+    if int(actors) != task.num_envs:
+        raise ConfigError(f"train.params.config.num_actors={actors} differs from the task's {task.num_envs} envs: "
+                          "write num_actors: ${....task.env.numEnvs}")
+    if task.observations.images is not None:
+        raise ConfigError(f"task={cfg.task_name} observes camera images, which learner=rl_games does not feed to a "
+                          "CNN here: train it with the rsl_rl learner")
+    config["num_actors"] = task.num_envs
+    config["device"] = config["device_name"] = task.rl_device
+    config["multi_gpu"] = bool(cfg.get("multi_gpu", False))
+    config.setdefault("name", cfg.task_name)
+    if not str(task.rl_device).startswith("cuda"):
+        config["mixed_precision"] = False
+    return params
+
+
+class RlGamesVecEnv:
+    """Presents a VecTask to rl_games (its IVecEnv contract: ``step`` returns the obs dict, rewards, dones and
+    extras, ``extras['time_outs']`` bootstraps), keeping the same device-side episode statistics as the rsl_rl
+    adapter. ``on_step`` (set by the runner) runs after each step: stop requests and progress lines."""
+
+    def __init__(self, task: VecTask) -> None:
+        self.task = task
+        self.num_envs = task.num_envs
+        self.max_episode_length = task.max_episode_length
+        self.device = task.rl_device
+        self.stats = EpisodeStats(task.num_envs, task.rl_device)
+        self.stats.count("nonfinite_inputs", task.nonfinite_inputs_count)
+        self.on_step: Callable[[], None] | None = None
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:
+        return self.task.progress_buf
+
+    def step(self, actions: torch.Tensor) -> tuple[dict, torch.Tensor, torch.Tensor, dict]:
+        obs_dict, rew, reset, extras = self.task.step(actions)
+        record_step(self.stats, self.task, rew, reset, extras)
+        if self.on_step is not None:
+            self.on_step()
+        return _rl_games_obs(obs_dict), rew, reset, extras
+
+    def reset(self) -> dict:
+        return _rl_games_obs(self.task.reset())
+
+    def get_number_of_agents(self) -> int:
+        return 1
+
+    def has_action_masks(self) -> bool:
+        return False
+
+    def get_env_info(self) -> dict:
+        info = {"action_space": self.task.action_space, "observation_space": self.task.observation_space,
+                "agents": 1, "value_size": 1}
+        if self.task.num_states > 0:
+            info["state_space"] = gym.spaces.Box(-np.inf, np.inf, shape=(self.task.num_states,), dtype=np.float32)
+        return info
+
+    def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
+        pass  # the task counts its own env steps (VecTask.set_train_info is called on resume)
+
+    def get_env_state(self) -> None:
+        return self.task.get_env_state()
+
+    def set_env_state(self, env_state: Any) -> None:
+        self.task.set_env_state(env_state)
+
+    def seed(self, seed: int) -> None:
+        pass  # the run seeds torch, and the task's draws come from it
+
+
+def _rl_games_obs(obs_dict: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """rl_games reads 'obs' and, with a central value network, 'states' (the actor's inputs when the task has none)."""
+    return {"obs": obs_dict["obs"], "states": obs_dict.get("states", obs_dict["obs"])}
+
+
+class _NoWriter:
+    """rl_games writes its scalars to ``agent.writer``; where this process logs nothing (test mode, ranks > 0)."""
+
+    def add_scalar(self, *args, **kwargs) -> None:
+        pass
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class RlGamesRunner(TrainingRun):
+    """rl_games' A2CAgent inside this project's training loop (the module's docstring)."""
+
+    def __init__(self, env: RlGamesVecEnv, params: dict, log_dir: str | None, device: str,
+                 verbose: bool = False) -> None:
+        from rl_games.algos_torch.a2c_continuous import A2CAgent
+        from rl_games.common.algo_observer import AlgoObserver
+        from rl_games.common.tr_helpers import DefaultRewardsShaper
+
+        self.env = env
+        self.device = device
+        self.log_dir = log_dir
+        self.params = params
+        config = params["config"]
+        self.save_frequency = int(config.get("save_frequency", 0) or 0)
+        self.save_best_after = int(config.get("save_best_after", 0) or 0)
+        self.max_frames = int(config.get("max_frames", -1) or -1)
+        self.score_to_win = config.get("score_to_win")
+        self.max_iterations = int(config.get("max_epochs", -1))
+        agent_params = {**params, "config": {
+            **config, "env_info": env.get_env_info(), "vec_env": env,
+            "reward_shaper": DefaultRewardsShaper(**(config.get("reward_shaper") or {})),
+            "features": {"observer": AlgoObserver()}, "print_stats": False, "player": None}}
+        # rl_games makes <train_dir>/<name>/{nn,summaries} and a SummaryWriter there: a folder of its own that goes
+        # away; this runner's checkpoints and scalars go to the run folder.
+        with tempfile.TemporaryDirectory(prefix="rl_games.") as scratch:
+            agent_params["config"].update(train_dir=scratch, full_experiment_name="scratch")
+            with contextlib.nullcontext() if verbose else contextlib.redirect_stdout(io.StringIO()):
+                self.agent = A2CAgent(base_name="run", params=agent_params)
+            self.agent.writer.close()
+        self.agent.writer = _NoWriter()
+        self.gpu_world_size = self.agent.world_size
+        self.is_distributed = self.agent.multi_gpu
+        self.current_learning_iteration = 0
+        self.steps_per_env = int(self.agent.horizon_length)
+        self._started = False
+        self.init_training_run(LearnerGuard(self._learner_tensors), is_main=self.agent.global_rank == 0)
+
+    def _learner_tensors(self) -> list[torch.Tensor]:
+        """Every tensor that defines the learner: the model's parameters and buffers (normalisers included), a
+        central value network's, and the optimisers' per-parameter state."""
+        agent = self.agent
+        modules = [agent.model] + ([agent.central_value_net] if agent.has_central_value else [])
+        optimizers = [agent.optimizer] + ([agent.central_value_net.optimizer] if agent.has_central_value else [])
+        tensors: list[torch.Tensor] = []
+        for module in modules:
+            tensors += list(module.parameters()) + list(module.buffers())
+        for optimizer in optimizers:
+            for state in optimizer.state.values():
+                tensors += [v for v in state.values() if isinstance(v, torch.Tensor)]
+        return tensors
+
+    def current_learning_rate(self) -> float:
+        return float(self.agent.last_lr)
+
+    def _action_noise(self) -> dict[str, float]:
+        sigma = getattr(self.agent.model.a2c_network, "sigma", None)
+        if not isinstance(sigma, torch.Tensor) or not getattr(self.agent.model.a2c_network, "fixed_sigma", False):
+            return {}
+        with torch.no_grad():
+            std = sigma.exp() if self.params["model"]["name"] == "continuous_a2c_logstd" else sigma
+            low, mean, index = torch.stack([std.min(), std.mean(), std.argmin().to(std.dtype)]).tolist()
+        return {"action_std_min": low, "action_std_mean": mean, "action_std_min_index": int(index)}
+
+    def _start(self) -> None:
+        """What rl_games' own ``train()`` does before its first epoch: buffers, the first observation, and with
+        several GPUs rank 0's weights on every rank."""
+        if self._started:
+            return
+        agent = self.agent
+        agent.init_tensors()
+        agent.obs = agent.env_reset()
+        agent.curr_frames = agent.batch_size_envs
+        if self.is_distributed:
+            weights = [agent.model.state_dict()]
+            torch.distributed.broadcast_object_list(weights, 0)
+            agent.model.load_state_dict(weights[0])
+        self._started = True
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False,
+              max_train_time_s: float | None = None) -> None:
+        """Train as ``Runner.learn`` does (learning/runner.py), each iteration one rl_games ``train_epoch``."""
+        agent, env = self.agent, self.env
+        writer = None
+        if self.log_dir and self.is_main:
+            writer = make_writer({}, self.log_dir, self.experiment, self.run_config)
+            agent.writer = writer
+        if init_at_random_ep_len:
+            env.task.progress_buf.copy_(torch.randint_like(env.task.progress_buf, high=int(env.max_episode_length)))
+        start_it = self.current_learning_iteration
+        last_it = start_it + num_learning_iterations
+        steps = {"done": 0}
+        progress = _FirstCollectProgress(start_it + 1, self.steps_per_env, time.perf_counter()) if self.is_main \
+            else None
+
+        def after_step() -> None:
+            steps["done"] += 1
+            if steps["done"] == 1:  # the first step compiles (torch, Triton): check after it
+                keep_stop_handler()
+            self._stop_if_requested()
+            if progress is not None and steps["done"] <= self.steps_per_env:
+                progress.step_done(steps["done"])
+
+        env.on_step = after_step
+        try:
+            self._start()
+            for it in range(start_it, last_it):
+                agent.epoch_num = it + 1
+                (step_s, play_s, update_s, total_s, a_losses, c_losses, b_losses, entropies, kls, last_lr,
+                 lr_mul) = agent.train_epoch()
+                agent.dataset.update_values_dict(None)  # the rollout's tensors are not needed until the next one
+                frames = agent.curr_frames * self.gpu_world_size
+                agent.frame += frames
+                self.current_learning_iteration = it + 1
+                losses = _mean_losses(surrogate=a_losses, value=c_losses, entropy=entropies, kl=kls,
+                                      bounds=b_losses)
+                if writer is not None:  # rl_games' own scalars too, under its names, for curves from IsaacGymEnvs
+                    agent.write_stats(total_s, it + 1, max(step_s, 1e-9), play_s, update_s, a_losses, c_losses, entropies, kls,
+                                      last_lr, lr_mul, agent.frame, total_s, play_s, frames)
+                restored = self._keep_learner_finite(it + 1)
+                self._log_iteration(writer, it, last_it, play_s, update_s, losses, 0, restored)
+                keep_stop_handler()
+                self._stop_if_requested()
+                if max_train_time_s is not None and self._budget_spent(max_train_time_s):
+                    self.time_budget_reached = True
+                    break
+                if self._reached_goal():
+                    break
+                self._save_every(it + 1, self.save_frequency)
+        except BaseException:
+            self._save_interrupted(start_it)
+            raise
+        else:
+            self._save_last()
+        finally:
+            env.on_step = None
+            if writer is not None:
+                writer.close()
+            agent.writer = _NoWriter()
+
+    def _reached_goal(self) -> bool:
+        """rl_games' own ends: ``max_frames`` env steps, or a mean episode reward above ``score_to_win``."""
+        if self.max_frames > 0 and self.total_env_steps >= self.max_frames:
+            print(f"[train] max_frames={self.max_frames} env steps reached", flush=True)
+            return True
+        reward = self.recent_means().get("mean_episode_reward")
+        if self.score_to_win is not None and reward is not None and reward > float(self.score_to_win):
+            print(f"[train] the mean episode reward {reward:.2f} is above score_to_win={self.score_to_win}",
+                  flush=True)
+            return True
+        return False
+
+    def _save(self, path: str) -> None:
+        """As TrainingRun._save; model_best.pt considers checkpoints from ``save_best_after`` on."""
+        best = self.best
+        if best is not None and self.current_learning_iteration < self.save_best_after:
+            self.best = None
+        try:
+            super()._save(path)
+        finally:
+            self.best = best
+
+    def save(self, path: str) -> None:
+        """rl_games' checkpoint (model, optimiser, epoch, frame) with this run's iteration and env steps; written
+        whole or not at all."""
+        state = self.agent.get_full_state_weights()
+        state.update(learner=LEARNER, iteration=self.current_learning_iteration,
+                     total_env_steps=self.total_env_steps)
+        partial = Path(path).with_name(f".{Path(path).name}.{os.getpid()}.partial")
+        torch.save(state, partial)
+        os.replace(partial, path)
+
+    def load(self, path: str, map_location: str | None = None, state: dict | None = None) -> None:
+        if state is None:
+            state = torch.load(path, map_location=map_location or self.device, weights_only=False)
+        state = _to_device(state, self.device)
+        self.agent.set_full_state_weights(state, set_epoch=True)
+        self.current_learning_iteration = int(state.get("iteration", state.get("epoch", 0)))
+        self.total_env_steps = int(state.get("total_env_steps", state.get("frame", 0)))
+
+    def load_checkpoint(self, path: Path, task: VecTask, state: dict) -> None:
+        """Load a checkpoint (this runner's, or rl_games' own .pth) after checking its network fits the task."""
+        model = state.get("model", {})
+        ours = self.agent.model.state_dict()
+        for key, value in model.items():
+            if key in ours and tuple(ours[key].shape) != tuple(value.shape):
+                raise ConfigError(f"checkpoint '{path}' does not fit this task and train YAML: its {key} has shape "
+                                  f"{tuple(value.shape)}, this run's {tuple(ours[key].shape)} (task "
+                                  f"{type(task).__name__}: {task.num_obs} observations, {task.num_actions} actions; "
+                                  "network sizes: train.params.network.mlp.units)")
+        missing = sorted(set(ours) - set(model))
+        if missing:
+            raise ConfigError(f"checkpoint '{path}' lacks {missing[0]}: it was written for another network "
+                              "(train.params.network) or another learner")
+        self.load(str(path), state=state)
+        task.set_train_info(self.total_env_steps)
+
+    def policy_module(self) -> torch.nn.Module:
+        """The deterministic policy as a module: raw observations -> the action the env receives (rl_games clamps
+        the mean to [-1, 1] and maps it onto the action space, as in training)."""
+        return _RlGamesPolicy(self.agent)
+
+    def get_inference_policy(self, device: str | None = None) -> Callable:
+        module = self.policy_module().to(device or self.device).eval()
+
+        def policy(obs) -> torch.Tensor:
+            with torch.no_grad():
+                return module(obs["policy"])
+
+        return policy
+
+
+class _RlGamesPolicy(torch.nn.Module):
+    """A trained rl_games agent's deterministic policy, copied out of it for test mode and export: its input
+    normaliser ((x - mean) / sqrt(var + 1e-5), clamped to +-5, as rl_games' RunningMeanStd computes it; written out
+    here because its TorchScript module cannot be traced as a submodule), its network's mean action, and rl_games'
+    action mapping (the mean clamped to [-1, 1], then onto the action space's bounds)."""
+
+    def __init__(self, agent) -> None:
+        super().__init__()
+        model = agent.model
+        self.network = copy.deepcopy(model.a2c_network)
+        self.obs_shape = tuple(model.obs_shape)
+        normaliser = model.running_mean_std if model.normalize_input else None
+        self.normalize = normaliser is not None
+        if normaliser is not None:
+            self.register_buffer("obs_mean", normaliser.running_mean.detach().float().clone())
+            self.register_buffer("obs_std", (normaliser.running_var.detach().float() + normaliser.epsilon).sqrt())
+        self.clip = bool(agent.clip_actions)
+        self.register_buffer("low", agent.actions_low.detach().clone())
+        self.register_buffer("high", agent.actions_high.detach().clone())
+        self.input_names = ["obs"]
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.normalize:
+            obs = ((obs - self.obs_mean) / self.obs_std).clamp(-5.0, 5.0)
+        mu = self.network({"obs": obs})[0]
+        if not self.clip:
+            return mu
+        return self.low + (mu.clamp(-1.0, 1.0) + 1.0) * 0.5 * (self.high - self.low)
+
+    def get_dummy_inputs(self) -> tuple[torch.Tensor]:
+        return (torch.zeros(1, *self.obs_shape, device=self.low.device),)
+
+
+def _mean_losses(**lists: list) -> dict[str, float]:
+    """rl_games' per-minibatch loss tensors averaged per kind (one host read for all)."""
+    present = {k: v for k, v in lists.items() if v}
+    if not present:
+        return {}
+    means = torch.stack([torch.stack([x.detach().float().reshape(()) for x in v]).mean()
+                         for v in present.values()]).tolist()
+    return dict(zip(present, means))
+
+
+def _to_device(state: Any, device: str) -> Any:
+    if isinstance(state, torch.Tensor):
+        return state.to(device)
+    if isinstance(state, dict):
+        return {k: _to_device(v, device) for k, v in state.items()}
+    return state

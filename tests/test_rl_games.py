@@ -1,0 +1,163 @@
+"""The second learner, rl_games (IsaacGymEnvs' own): training, test mode, export, IsaacGymEnvs' train YAMLs, stops
+and errors, through the same run folder and summary as rsl-rl-lib's runs."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import REPO_ROOT, signal_at_line
+from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+IGE_CFG = REPO_ROOT / "tests" / "data" / "isaacgymenvs_cfg"  # IsaacGymEnvs' own AntPPO.yaml, as it ships
+
+
+def _run_dir(runs: Path, experiment: str) -> Path:
+    (run_dir,) = [p for p in (runs / experiment).iterdir() if p.is_dir()]
+    return run_dir
+
+
+def test_cartpole_learns_with_rl_games_and_test_mode_evaluates_its_checkpoint(tmp_path, run_args):
+    runs = tmp_path / "runs"
+    summary = run(compose_config(["learner=rl_games", "task=Cartpole", "num_envs=64", "max_iterations=30", *run_args]))
+    history = summary["history"]
+    first = next(r["mean_episode_reward"] for r in history if r.get("mean_episode_reward") is not None)
+    # The pole falls within ~20 steps under the untrained policy; rl_games' PPO keeps it up far longer.
+    assert summary["mean_episode_length"] > 100 and summary["mean_episode_reward"] > 3 * first, (first, summary)
+    run_dir = _run_dir(runs, "Cartpole")
+    on_disk = json.loads((run_dir / "summary.json").read_text())
+    # The same summary keys as an rsl_rl run's (tests/test_training.py reads them too).
+    rsl = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=1", "experiment=rsl", *run_args]))
+    assert set(on_disk) == set(rsl)
+    assert on_disk["iterations"] == 30 and on_disk["env_steps"] == 30 * 16 * 64
+    checkpoint = torch.load(run_dir / "model_30.pt", map_location="cpu", weights_only=False)
+    assert checkpoint["learner"] == "rl_games" and checkpoint["iteration"] == 30 and "model" in checkpoint
+    assert (run_dir / "model_best.pt").is_file() and on_disk["best_checkpoint"]["iteration"] >= 20  # save_best_after
+    assert any(p.name.startswith("events.out.tfevents") for p in run_dir.iterdir())
+
+    result = run(compose_config(["learner=rl_games", "task=Cartpole", "num_envs=32", "test=True",
+                                 f"checkpoint={run_dir / 'model_30.pt'}", *run_args]))
+    assert result["episodes"] == 32 and result["mean_episode_length"] > 150
+    assert json.loads((run_dir / "eval.json").read_text())["mean_episode_length"] == result["mean_episode_length"]
+
+    # The exported ONNX policy gives the action test mode's policy gives (rl_games' own model is the reference).
+    import onnxruntime
+
+    session = onnxruntime.InferenceSession(str(run_dir / "exported" / "policy.onnx"))
+    obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32) * 3
+    exported = session.run(["actions"], {"obs": obs})[0]
+    agent = _agent_from(run_dir / "model_30.pt")
+    with torch.no_grad():
+        mus = agent.model({"is_train": False, "obs": torch.from_numpy(obs), "prev_actions": None})["mus"]
+    assert np.allclose(exported, mus.clamp(-1, 1).numpy(), atol=1e-5)
+
+
+def _agent_from(checkpoint: Path):
+    """rl_games' A2CAgent for Cartpole's rl_games recipe with the checkpoint's weights, in eval mode."""
+    from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
+    from isaacgymenvs_mw.tasks.build import build_task
+
+    cfg = compose_config(["learner=rl_games", "task=Cartpole", "num_envs=4", "sim_device=cpu", "rl_device=cpu",
+                          "headless=True"])
+    task = build_task(cfg)
+    runner = RlGamesRunner(RlGamesVecEnv(task), rl_games_params(cfg, task), log_dir=None, device="cpu")
+    runner.load(str(checkpoint), map_location="cpu")
+    runner.agent.model.eval()
+    return runner.agent
+
+
+def test_isaacgymenvs_own_train_yaml_runs_unchanged_from_a_config_dir(tmp_path, run_args):
+    """IsaacGymEnvs' AntPPO.yaml as it ships, named as IsaacGymEnvs names it: the folder given as --config-dir is
+    searched before cfg/, whose own AntPPO.yaml (rsl-rl-lib's) it replaces."""
+    cfg = compose_config(["task=Ant", "train=AntPPO", "num_envs=4", "max_iterations=2",
+                          "train.params.config.minibatch_size=32", *run_args], config_dir=IGE_CFG)
+    assert cfg.train.params.config.num_actors == 4 and cfg.train.params.config.max_epochs == 2
+    summary = run(cfg)
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 16 * 4
+    assert (_run_dir(tmp_path / "runs", "Ant") / "model_2.pt").is_file()
+
+
+def test_a_rl_games_run_stopped_by_sigterm_keeps_its_checkpoint_and_summary(tmp_path):
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "learner=rl_games", "task=Cartpole", "num_envs=16",
+           "max_iterations=100000", "headless=True", "sim_device=cpu", "rl_device=cpu", f"runs_dir={runs}"]
+    status, out = signal_at_line(cmd, tmp_path, "[it     3/", signal.SIGTERM, timeout=300)
+    assert status == 128 + signal.SIGTERM, out[-3000:]
+    run_dir = _run_dir(runs, "Cartpole")
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["signal"] == "SIGTERM"
+    interrupted = Path(summary["interrupted_checkpoint"])
+    assert interrupted.is_file() and interrupted.name.endswith("_interrupted.pt")
+    state = torch.load(interrupted, map_location="cpu", weights_only=False)
+    assert state["learner"] == "rl_games" and state["iteration"] >= 3
+    assert "Traceback" not in out
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("+train.params.config.self_play=True", "train.params.config.self_play=True is not supported with "
+                                            "learner=rl_games: self-play needs several agents per env"),
+    ("+train.params.config.minibatch_sise=8", "train.params.config.minibatch_sise: not an rl_games key"),
+    ("train.params.algo.name=sac", "train.params.algo.name='sac' is not supported with learner=rl_games"),
+    ("+train.params.config.schedule_type=sometimes", "train.params.config.schedule_type='sometimes' is not "
+                                                    "supported"),
+    ("+train.params.network.rnn.name=lstm", "train.params.network.rnn is not supported"),
+])
+def test_rl_games_keys_this_project_cannot_honour_fail_naming_the_key(override, message):
+    from isaacgymenvs_mw.learning.train_config import check_before_start
+
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
+        check_before_start(compose_config(["learner=rl_games", override, "sim_device=cpu", "rl_device=cpu"]))
+
+
+def test_learner_and_train_yaml_must_agree_and_checkpoints_name_their_learner(tmp_path):
+    def train_py(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), *args, "headless=True",
+                               "sim_device=cpu", "rl_device=cpu"], cwd=tmp_path, capture_output=True, text=True,
+                              timeout=300)
+
+    proc = train_py("learner=rl_games", "train=CartpolePPO")
+    assert proc.returncode == 2 and proc.stderr.strip().startswith(
+        "[train] error: learner=rl_games, but the train YAML is rsl-rl-lib's"), proc.stderr
+    proc = train_py("learner=keras")
+    assert proc.returncode == 2 and "learner='keras' is invalid: choose one of ['rsl_rl', 'rl_games']" in proc.stderr
+    rl_games_checkpoint = tmp_path / "model_7.pt"
+    torch.save({"model": {}, "epoch": 7, "learner": "rl_games"}, rl_games_checkpoint)
+    proc = train_py("test=True", f"checkpoint={rl_games_checkpoint}")
+    assert proc.returncode == 2 and "it was written by learner=rl_games" in proc.stderr, proc.stderr
+
+
+def test_the_test_mode_policy_is_rl_games_deterministic_action():
+    """_RlGamesPolicy writes rl_games' input normaliser and action mapping out; rl_games' own model is the reference,
+    with normaliser statistics far from the identity."""
+    from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
+    from isaacgymenvs_mw.tasks.build import build_task
+
+    cfg = compose_config(["learner=rl_games", "task=Cartpole", "num_envs=4", "sim_device=cpu", "rl_device=cpu",
+                          "headless=True"])
+    task = build_task(cfg)
+    runner = RlGamesRunner(RlGamesVecEnv(task), rl_games_params(cfg, task), log_dir=None, device="cpu")
+    model = runner.agent.model
+    with torch.no_grad():
+        model.running_mean_std.running_mean.copy_(torch.tensor([0.5, -1.0, 2.0, 0.1], dtype=torch.float64))
+        model.running_mean_std.running_var.copy_(torch.tensor([4.0, 0.25, 9.0, 0.01], dtype=torch.float64))
+        for p in model.a2c_network.parameters():
+            p.add_(torch.randn_like(p))  # actions beyond [-1, 1] too, to see the clamp
+    model.eval()
+    obs = torch.randn(64, 4) * 4
+    policy = runner.get_inference_policy("cpu")
+    from tensordict import TensorDict
+
+    ours = policy(TensorDict({"policy": obs}, batch_size=[64]))
+    with torch.no_grad():
+        mus = model({"is_train": False, "obs": obs.clone(), "prev_actions": None})["mus"]
+    assert (mus.abs() > 1).any()
+    assert torch.allclose(ours, mus.clamp(-1, 1), atol=1e-6)
