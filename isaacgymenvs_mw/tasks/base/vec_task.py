@@ -186,7 +186,7 @@ class VecTask:
 
     def state_terms(self) -> list[ObsTerm] | None:
         """The privileged critic state as named terms; ``numStates`` is their total (``numStates: 0`` in the YAML
-        turns the critic state off). None: no critic state, or one the task fills itself (``numStates`` > 0)."""
+        turns the critic state off). None or []: no critic state, or one the task fills itself (``numStates`` > 0)."""
         return None
 
     def image_terms(self) -> list[ImageTerm] | None:
