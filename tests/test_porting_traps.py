@@ -1,0 +1,70 @@
+"""What an IsaacGymEnvs port meets (issue 59): a task's own errors, an empty critic state, Python state in the hooks,
+joint velocity limits, a GL backend that is not installed."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+from conftest import CPU_ARGS, REPO_ROOT, TESTS_DIR
+
+import _porting_tasks  # noqa: F401  (registers the tasks below)
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+
+def porting_cfg(name: str, *overrides: str, num_envs: int = 4):
+    return compose_config(["task=Cartpole", f"task.name={name}", f"num_envs={num_envs}", *CPU_ARGS, *overrides])
+
+
+def train_py(tmp_path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(TESTS_DIR)}
+    env.pop("HYDRA_FULL_ERROR", None)
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), *CPU_ARGS, "num_envs=4", "max_iterations=1",
+           f"runs_dir={tmp_path}/runs", "task=Cartpole", "task_module=_porting_tasks", *args]
+    return subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+
+
+# ------------------------------------------------------------------ errors raised by a task
+def test_a_tasks_value_error_is_one_line_with_status_2_and_the_key_as_typed(tmp_path):
+    proc = train_py(tmp_path, "task.name=CartpoleBadValueForTests", "task.env.maxEffort=2000")
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stdout + proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("[train] error: ")]
+    assert len(errors) == 1, proc.stderr[-3000:]
+    assert errors[0].startswith("[train] error: task.env.maxEffort=2000 is invalid: give at most 1000 N (raised at "
+                                "_porting_tasks.py:"), errors
+
+
+def test_a_tasks_config_error_keeps_a_key_already_spelled_as_typed():
+    with pytest.raises(ConfigError) as caught:
+        build_task(porting_cfg("CartpoleConfigErrorForTests", "task.env.resetDist=-1"))
+    assert str(caught.value) == "task.env.resetDist=-1 is invalid: give a distance >= 0 (m)"
+    # A plain ValueError of the task's own code is told the same way, the key under task.
+    with pytest.raises(ConfigError, match=r"^task\.env\.maxEffort=1500 is invalid: give at most 1000 N \(raised at "
+                                          r"_porting_tasks\.py:\d+\)$"):
+        build_task(porting_cfg("CartpoleBadValueForTests", "task.env.maxEffort=1500"))
+
+
+def test_a_value_error_raised_by_a_library_inside_the_constructor_stays_a_bug():
+    import json
+
+    with pytest.raises(json.JSONDecodeError) as caught:
+        build_task(porting_cfg("CartpoleBugForTests"))
+    assert not isinstance(caught.value, ConfigError)
+
+
+# ------------------------------------------------------------------ state_terms() == []
+def test_an_empty_state_term_list_means_no_critic_state_and_trains(tmp_path):
+    from isaacgymenvs_mw.learning.launch import run
+
+    task = build_task(porting_cfg("CartpoleNoStateForTests"))
+    obs = task.reset()
+    assert task.num_states == 0 and "states" not in obs and task.observations.state_layout is None
+    task.step(task.zero_actions())
+    summary = run(porting_cfg("CartpoleNoStateForTests", "max_iterations=2", f"runs_dir={tmp_path}/runs",
+                              num_envs=8))
+    assert summary["iterations"] == 2
