@@ -20,8 +20,9 @@ def porting_cfg(name: str, *overrides: str, num_envs: int = 4):
     return compose_config(["task=Cartpole", f"task.name={name}", f"num_envs={num_envs}", *CPU_ARGS, *overrides])
 
 
-def train_py(tmp_path, *args: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(TESTS_DIR)}
+def train_py(tmp_path, *args: str, pythonpath: tuple = ()) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join(map(str, [*pythonpath, TESTS_DIR]))}
     env.pop("HYDRA_FULL_ERROR", None)
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), *CPU_ARGS, "num_envs=4", "max_iterations=1",
            f"runs_dir={tmp_path}/runs", "task=Cartpole", "task_module=_porting_tasks", *args]
@@ -68,3 +69,48 @@ def test_an_empty_state_term_list_means_no_critic_state_and_trains(tmp_path):
     summary = run(porting_cfg("CartpoleNoStateForTests", "max_iterations=2", f"runs_dir={tmp_path}/runs",
                               num_envs=8))
     assert summary["iterations"] == 2
+
+
+# ------------------------------------------------------------------ MUJOCO_GL naming a backend that cannot load
+# Loaded by Python at start-up (sitecustomize on PYTHONPATH): the dynamic loader finds no libOSMesa, as on a machine
+# without the package, whether or not this one has it.
+NO_OSMESA = """
+import ctypes
+_load = ctypes.CDLL.__init__
+def _without_osmesa(self, name, *args, **kwargs):
+    if name and "OSMesa" in str(name):
+        raise OSError(f"{name}: cannot open shared object file: No such file or directory")
+    _load(self, name, *args, **kwargs)
+ctypes.CDLL.__init__ = _without_osmesa
+"""
+
+
+@pytest.mark.parametrize("backend, says", [
+    ("osmesa", "MUJOCO_GL=osmesa needs libOSMesa, for CPU rendering (Debian/Ubuntu: apt-get install libosmesa6). Or "
+               "unset MUJOCO_GL"),
+    ("nope", "MUJOCO_GL='nope' is not a backend MuJoCo knows: give one of ['osmesa', 'egl', "),
+])
+def test_a_mujoco_gl_backend_that_cannot_load_is_one_line_saying_what_to_install(tmp_path, monkeypatch, backend,
+                                                                                  says):
+    shim = tmp_path / "no_osmesa"
+    shim.mkdir()
+    (shim / "sitecustomize.py").write_text(NO_OSMESA)
+    monkeypatch.setenv("MUJOCO_GL", backend)
+    monkeypatch.delenv("PYOPENGL_PLATFORM", raising=False)
+    proc = train_py(tmp_path, pythonpath=[shim])
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2, out[-3000:]
+    assert "Traceback" not in out
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("[train] error: ")]
+    assert len(errors) == 1 and errors[0].startswith(
+        f"[train] error: mujoco cannot be imported with MUJOCO_GL={backend!r} ("), out[-3000:]
+    assert says in errors[0]
+
+
+def test_mujoco_import_error_names_each_backends_library():
+    from isaacgymenvs_mw.sim.gl import mujoco_import_error
+
+    err = mujoco_import_error("egl", OSError("libEGL.so.1: cannot open shared object file"))
+    assert isinstance(err, ConfigError) and "\n" not in str(err)
+    assert "(OSError: libEGL.so.1: cannot open shared object file): MUJOCO_GL=egl needs libEGL" in str(err)
+    assert "apt-get install libegl1" in str(err)
