@@ -114,3 +114,39 @@ def test_mujoco_import_error_names_each_backends_library():
     assert isinstance(err, ConfigError) and "\n" not in str(err)
     assert "(OSError: libEGL.so.1: cannot open shared object file): MUJOCO_GL=egl needs libEGL" in str(err)
     assert "apt-get install libegl1" in str(err)
+
+
+# ------------------------------------------------------------------ joint velocity limit (env.control.velocityClamp)
+def pushed_cart_speeds(overrides: list[str], steps: int = 80):
+    """Cart and pole speeds after each of ``steps`` env steps of the largest push (action +1: 400 N on the cart)."""
+    import torch
+
+    task = build_task(porting_cfg("Cartpole", *overrides))
+    task.reset()
+    push = torch.ones((task.num_envs, 1))
+    cart, pole = [], []
+    for _ in range(steps):
+        obs = task.step(push)[0]["obs"]
+        cart.append(task.sim.dof_vel[:, task.cart_dof].clone())
+        pole.append(task.sim.dof_vel[:, task.pole_dof].clone())
+        assert torch.equal(obs[:, 1], cart[-1].clamp(-5.0, 5.0))  # what the policy sees (clipObservations 5)
+    return torch.stack(cart), torch.stack(pole), task
+
+
+def test_the_velocity_clamp_holds_a_joint_under_the_largest_push():
+    free, free_pole, _ = pushed_cart_speeds([])
+    assert float(free.abs().max()) > 3.0  # without the clamp 400 N drives the cart well past 0.5 m/s
+    cart, pole, task = pushed_cart_speeds(["+task.env.control.velocityClamp={slider_to_cart:0.5}"])
+    assert float(cart.abs().max()) <= 0.5
+    assert float((cart == 0.5).float().mean()) > 0.5  # it runs at the limit, not below it by chance
+    assert float(pole.abs().max()) > 0.5  # the pole's joint, not named, is left alone
+    assert task.dof_velocity_clamp.tolist() == [0.5, float("inf")]
+
+
+def test_one_velocity_clamp_for_every_joint_and_bad_values():
+    cart, pole, _ = pushed_cart_speeds(["+task.env.control.velocityClamp=0.25"], steps=40)
+    assert float(cart.abs().max()) <= 0.25 and float(pole.abs().max()) <= 0.25  # 0.25: exact in float32
+    with pytest.raises(ConfigError, match=r"^task\.env\.control\.velocityClamp=-1 is invalid: give a number >= 0"):
+        build_task(porting_cfg("Cartpole", "+task.env.control.velocityClamp=-1"))
+    with pytest.raises(ConfigError, match=r"task\.env\.control\.velocityClamp: 'wheel' matches no joint"):
+        build_task(porting_cfg("Cartpole", "+task.env.control.velocityClamp={wheel:1.0}"))
