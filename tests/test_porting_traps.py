@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import warnings
 
 import pytest
 from conftest import CPU_ARGS, REPO_ROOT, TESTS_DIR
@@ -69,6 +70,51 @@ def test_an_empty_state_term_list_means_no_critic_state_and_trains(tmp_path):
     summary = run(porting_cfg("CartpoleNoStateForTests", "max_iterations=2", f"runs_dir={tmp_path}/runs",
                               num_envs=8))
     assert summary["iterations"] == 2
+
+
+# ------------------------------------------------------------------ Python state in the step hooks
+def test_a_python_counter_in_the_hooks_is_named_once_with_the_fix():
+    import torch
+
+    from isaacgymenvs_mw.tasks.base.python_state import PythonStateWarning
+
+    task = build_task(porting_cfg("CartpolePythonCounterForTests"))
+    task.reset()
+    with pytest.warns(PythonStateWarning) as caught:
+        for _ in range(6):
+            task.step(task.zero_actions())
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert "self._n (int)" in message and "push_every" not in message  # a constant number is not named
+    assert "in a tensor" in message and "captureStep=False" in message
+    assert task._n == 6  # eager on the CPU: it kept counting
+    with warnings.catch_warnings():  # once: later steps say nothing more
+        warnings.simplefilter("error", PythonStateWarning)
+        task.step(torch.zeros((task.num_envs, 1)))
+
+
+def test_with_the_step_never_captured_the_counter_is_not_reported():
+    from isaacgymenvs_mw.tasks.base.python_state import PythonStateWarning
+
+    task = build_task(porting_cfg("CartpolePythonCounterForTests", "+task.sim.captureStep=False"))
+    task.reset()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PythonStateWarning)
+        for _ in range(5):
+            task.step(task.zero_actions())
+
+
+@pytest.mark.parametrize("name", ["Cartpole", "Quadcopter", "BallBalance", "Anymal", "Ant"])
+def test_shipped_tasks_keep_no_python_state_in_their_step(name):
+    from isaacgymenvs_mw.tasks.base.python_state import PythonStateWarning
+
+    task = build_task(compose_config([f"task={name}", "num_envs=2", *CPU_ARGS]))
+    task.reset()
+    assert task.execution.python_state is not None  # watched
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PythonStateWarning)
+        for _ in range(5):
+            task.step(task.zero_actions())
 
 
 # ------------------------------------------------------------------ MUJOCO_GL naming a backend that cannot load

@@ -131,7 +131,7 @@ class VecTask:
             type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics,
                                             self._render_cameras, images), self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
-            action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
+            action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels, task=self,
         )
 
     # -------------------------------------------------------------- properties
