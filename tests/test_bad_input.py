@@ -108,3 +108,6 @@ def test_task_keys_are_respelled_for_the_command_line():
     assert str(err) == ("task.sim.dt must be > 0; see task.env.terrain.type and task.task.randomization_params.x, "
                         "not cfg/sim.yaml, my-env.x or mujoco.sim.x")
     assert isinstance(err, ConfigError)
+    # A key the task already spelled as typed keeps its one task. prefix.
+    typed = "task.env.x=1 and task.sim.dt=0 and task.task.randomization_params.y"
+    assert str(under_task(ConfigError(typed))) == typed

@@ -14,7 +14,7 @@ DOCS = REPO_ROOT / "docs" / "config.md"
 YAML_FILES = sorted((REPO_ROOT / "cfg").rglob("*.yaml"))
 # Mappings whose keys are the user's choice (joint names or patterns), not configuration keys.
 USER_KEYED = {"defaultJointAngles", "driveMode", "stiffness", "damping", "armature", "jointDamping", "effortLimit",
-              "gear", "ctrlRange"}
+              "gear", "ctrlRange", "velocityClamp"}
 
 
 def key_paths(node: DictConfig, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:

@@ -1,5 +1,5 @@
-"""IsaacGym helper names (quat_axis, torch_rand_float, torch_random_dir_2, tensor_clamp) against formulas written here in numpy, and
-against MuJoCo C's own quaternion-to-matrix conversion."""
+"""IsaacGym helper names (quat_axis, torch_rand_float, torch_random_dir_2, tensor_clamp; torch_jit_utils' range and pose
+helpers) against formulas written here in numpy, known values, and MuJoCo C's own quaternion functions."""
 
 from __future__ import annotations
 
@@ -115,3 +115,64 @@ def test_quat_mul_and_conjugate_equal_mujoco_c():
         mujoco.mju_negQuat(expected_neg[i], a[i])
     np.testing.assert_allclose(quat_mul(torch.tensor(a), torch.tensor(b)).numpy(), expected_mul, atol=1e-12)
     np.testing.assert_allclose(quat_conjugate(torch.tensor(a)).numpy(), expected_neg, atol=1e-12)
+
+
+def test_scale_and_unscale_transform_map_the_range_onto_minus_one_one_and_back():
+    from isaacgymenvs_mw.utils.torch_utils import scale_transform, unscale_transform
+
+    lower, upper = torch.tensor([-1.0, 0.0, 2.0], dtype=torch.float64), torch.tensor([3.0, 0.5, 10.0],
+                                                                                       dtype=torch.float64)
+    # The ends and the midpoint, known values: lower -> -1, upper -> 1, midpoint -> 0; 1.5 times the half-range -> 1.5.
+    x = torch.stack([lower, upper, (lower + upper) / 2, (lower + upper) / 2 + 0.75 * (upper - lower)])
+    np.testing.assert_allclose(scale_transform(x, lower, upper).numpy(),
+                               [[-1, -1, -1], [1, 1, 1], [0, 0, 0], [1.5, 1.5, 1.5]], atol=1e-12)
+    y = torch.tensor(np.random.default_rng(3).uniform(-1.2, 1.2, size=(20, 3)))
+    lo, hi = lower.numpy(), upper.numpy()
+    np.testing.assert_allclose(unscale_transform(y, lower, upper).numpy(), lo + (y.numpy() + 1) / 2 * (hi - lo),
+                               atol=1e-12)
+    np.testing.assert_allclose(scale_transform(unscale_transform(y, lower, upper), lower, upper).numpy(), y.numpy(),
+                               atol=1e-12)
+
+
+def test_saturate_clamps_into_the_bounds():
+    from isaacgymenvs_mw.utils.torch_utils import saturate
+
+    got = saturate(torch.tensor([[-5.0, 0.2, 9.0]]), torch.tensor([-1.0, 0.0, 0.0]), torch.tensor([1.0, 1.0, 2.0]))
+    np.testing.assert_array_equal(got.numpy(), np.array([[-1.0, 0.2, 2.0]], dtype=np.float32))
+
+
+def test_quat_from_euler_xyz_equals_mujoco_c_and_the_product_of_axis_rotations():
+    from isaacgymenvs_mw.utils.torch_utils import quat_from_euler_xyz
+
+    angles = np.random.default_rng(5).uniform(-np.pi, np.pi, size=(30, 3))
+    got = quat_from_euler_xyz(*torch.tensor(angles).unbind(-1)).numpy()
+    for (roll, pitch, yaw), q in zip(angles, got):
+        want = np.zeros(4)
+        mujoco.mju_euler2Quat(want, np.array([roll, pitch, yaw]), "XYZ")  # extrinsic x, then y, then z
+        np.testing.assert_allclose(q, want, atol=1e-12)
+        # The same rotation built as qz(yaw) qy(pitch) qx(roll) from MuJoCo's axis-angle quaternions.
+        parts = []
+        for axis, angle in ((2, yaw), (1, pitch), (0, roll)):
+            part = np.zeros(4)
+            mujoco.mju_axisAngle2Quat(part, np.eye(3)[axis], angle)
+            parts.append(part)
+        zy, zyx = np.zeros(4), np.zeros(4)
+        mujoco.mju_mulQuat(zy, parts[0], parts[1])
+        mujoco.mju_mulQuat(zyx, zy, parts[2])
+        np.testing.assert_allclose(q, zyx, atol=1e-12)
+    # A pure yaw of 90 degrees turns the body's x axis onto world y.
+    q90 = quat_from_euler_xyz(torch.tensor([0.0]), torch.tensor([0.0]), torch.tensor([np.pi / 2]))
+    np.testing.assert_allclose(quat_axis(q90, 0).numpy(), [[0.0, 1.0, 0.0]], atol=1e-7)
+
+
+def test_local_to_world_space_equals_mujoco_c_frame_transform():
+    from isaacgymenvs_mw.utils.torch_utils import local_to_world_space
+
+    rng = np.random.default_rng(6)
+    pos, quat, offset = rng.normal(size=(20, 3)), random_quats(20, seed=6), rng.normal(size=(20, 3))
+    got = local_to_world_space(torch.tensor(offset), torch.tensor(np.concatenate([pos, quat], axis=1))).numpy()
+    for i in range(20):
+        want = np.zeros(3)
+        mujoco.mju_rotVecQuat(want, offset[i], quat[i])  # MuJoCo C, (w, x, y, z)
+        np.testing.assert_allclose(got[i], pos[i] + want, atol=1e-12)
+        np.testing.assert_allclose(got[i], pos[i] + matrix_wxyz(quat[i]) @ offset[i], atol=1e-12)

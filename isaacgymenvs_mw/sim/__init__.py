@@ -25,6 +25,10 @@ def _choose_mujoco_gl() -> None:
 
 _choose_mujoco_gl()
 
+from isaacgymenvs_mw.sim.gl import import_mujoco  # noqa: E402
+
+import_mujoco()  # a MUJOCO_GL whose library is missing: one line saying what to install, not PyOpenGL's traceback
+
 from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     DRIVE_MODES,
     GroundPlane,

@@ -23,6 +23,7 @@ from typing import Callable
 import mujoco
 import numpy as np
 
+from isaacgymenvs_mw.sim.gl import gl_install_hint
 from isaacgymenvs_mw.sim.simulator import Simulator
 from isaacgymenvs_mw.sim.terrain import ground_geoms
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -52,13 +53,7 @@ _gl_verdict: dict[str, str | None] = {}  # "error": None once the backend works,
 def _gl_error_message(reason: str) -> str:
     backend = os.environ.get("MUJOCO_GL", "")
     named = f"MUJOCO_GL={backend!r}" if backend else "MUJOCO_GL unset (GLFW, which needs a display)"
-    return (
-        f"MuJoCo's offscreen renderer cannot start with {named}: {reason}. Video recording needs an OpenGL "
-        "backend: on CPU machines OSMesa (Debian/Ubuntu: apt-get install libosmesa6, then MUJOCO_GL=osmesa or "
-        "leave MUJOCO_GL unset: isaacgymenvs_mw picks OSMesa when it finds the library), on NVIDIA GPUs EGL "
-        "(MUJOCO_GL=egl, libEGL from the driver or apt-get install libegl1). MUJOCO_GL is read when mujoco is "
-        "first imported, so set it before the run starts."
-    )
+    return f"MuJoCo's offscreen renderer cannot start with {named}: {reason}. {gl_install_hint()}"
 
 
 def gl_backend_error() -> str | None:

@@ -7,7 +7,9 @@ tasks without importing rsl_rl.
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
+import traceback
 
 import torch
 from omegaconf import DictConfig
@@ -47,3 +49,22 @@ def build_task(cfg: DictConfig) -> VecTask:
         )
     except ConfigError as err:  # the task names its keys from its own section; the command line says task.<key>
         raise under_task(err) from err
+    except ValueError as err:
+        where = raised_by_task_code(err, task_class)
+        if where is None:  # raised by a library or the framework: a bug, which keeps its traceback
+            raise
+        raise under_task(ConfigError(f"{err} ({where})")) from err
+
+
+def raised_by_task_code(err: BaseException, task_class: type) -> str | None:
+    """Where ``err`` was raised when that is the task's own code ("raised at my_task.py:42"), else None.
+
+    A ValueError raised while a task is built is the task's bad-value check (``raise ValueError("env.x ...")``, or
+    ``float(env["x"])`` of a word) when its innermost Python frame lies in the file of one of the task's classes
+    outside the framework (``tasks/base``); a ValueError raised in torch, numpy or the framework is a bug there."""
+    files = {os.path.realpath(inspect.getfile(cls)) for cls in task_class.__mro__
+             if issubclass(cls, VecTask) and cls.__module__.split(".")[:3] != ["isaacgymenvs_mw", "tasks", "base"]}
+    frames = traceback.extract_tb(err.__traceback__)
+    if not frames or os.path.realpath(frames[-1].filename) not in files:
+        return None
+    return f"raised at {os.path.basename(frames[-1].filename)}:{frames[-1].lineno}"

@@ -7,8 +7,9 @@ import re
 
 # A task-section key as the task code names it (``sim.dt``, ``env.terrain.type``, ``task.randomization_params``):
 # on the command line and in make()'s overrides it lives under ``task.``. Not preceded by a word character, a dot
-# or a path separator, so ``task.sim.dt``, ``cfg/sim.yaml`` and ``mujoco.sim`` are left alone.
-_TASK_KEY = re.compile(r"(?<![\w./\\-])(env|sim|task)\.(?=[A-Za-z_])")
+# or a path separator, so ``task.sim.dt``, ``cfg/sim.yaml`` and ``mujoco.sim`` are left alone; nor a key a task
+# already spelled as typed (``task.env.x``, ``task.sim.dt``, ``task.task.x``), which would become ``task.task.env.x``.
+_TASK_KEY = re.compile(r"(?<![\w./\\-])(?!task\.(?:env|sim|task)\.)(env|sim|task)\.(?=[A-Za-z_])")
 
 
 class ConfigError(ValueError):

@@ -8,7 +8,9 @@ import warnings
 from dataclasses import dataclass
 from typing import Mapping
 
-from isaacgymenvs_mw.sim import check_sim_keys
+import torch
+
+from isaacgymenvs_mw.sim import check_sim_keys, match_joint_numbers
 from isaacgymenvs_mw.tasks.base.history import HistorySpec, parse_history
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -56,6 +58,19 @@ def task_settings(config: Mapping, declares_layout: bool) -> TaskSettings:
     check_sim_keys(config.get("sim", {}))
     warn_unused_ige_keys(env)
     return settings
+
+
+def joint_velocity_clamp(env: Mapping, dof_names: list[str], device: str) -> torch.Tensor | None:
+    """``env.control.velocityClamp`` ({joint or regex: speed}, or one number for every joint) as a (joints,) tensor
+    over the robot's ``dof_vel`` columns, inf for a joint it does not name; None when the key is absent.
+
+    IsaacGymEnvs' DOF ``velocity`` property, as a clamp of the joint speed once per policy step (VecTask's
+    after-physics phase), not PhysX's solver limit; docs/config.md."""
+    value = env.get("control", {}).get("velocityClamp")
+    if value is None:
+        return None
+    limits = match_joint_numbers(value, dof_names, "env.control.velocityClamp", low=0.0)
+    return torch.tensor([limits.get(name, math.inf) for name in dof_names], dtype=torch.float32, device=device)
 
 
 def episode_length(env: dict, control_dt: float, steps_in_code: int | None) -> tuple[int, float]:

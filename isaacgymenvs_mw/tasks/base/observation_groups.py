@@ -76,7 +76,7 @@ class Observations:
             if self._yaml_num_obs:
                 self.obs_layout.check(self._yaml_num_obs, "env.numObservations")
             self.num_obs = self.obs_layout.size
-        if state_terms is not None and self.wants_state_terms:
+        if state_terms and self.wants_state_terms:  # [] declares no state, as None does
             self.state_layout = ObsLayout(state_terms)
             if self._yaml_num_states:
                 self.state_layout.check(self._yaml_num_states, "env.numStates")

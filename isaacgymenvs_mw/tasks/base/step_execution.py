@@ -40,6 +40,7 @@ from typing import Callable, Iterator
 
 import torch
 
+from isaacgymenvs_mw.tasks.base.python_state import PythonStateWatch
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 
@@ -81,7 +82,8 @@ class StepExecution:
 
     def __init__(self, name: str, phases: StepPhases, sim_cfg: dict, graphs_possible: bool,
                  action_shape: tuple[int, int], device: str,
-                 load_kernels: Callable[[Callable[[], None] | None], None] | None = None) -> None:
+                 load_kernels: Callable[[Callable[[], None] | None], None] | None = None,
+                 task: object | None = None) -> None:
         self.name, self.phases = name, phases
         self.before, self.physics, after = phases.before, phases.physics, phases.after
         self.graphs_wanted = bool(sim_cfg.get("captureStep", True)) and graphs_possible
@@ -98,6 +100,10 @@ class StepExecution:
         self.graphs: tuple[torch.cuda.CUDAGraph, ...] | None = None  # before, after[, observe even, odd]
         self.device = device
         self.steps = 0  # env steps run so far: the run's one step counter
+        # The task's Python numbers that its hooks change: frozen by a capture, so named in the eager steps before it
+        # (on every device; not where sim.captureStep=False keeps the hooks' Python running on a GPU too).
+        self.python_state = None if task is None or not sim_cfg.get("captureStep", True) else PythonStateWatch(
+            task, name, WARMUP_STEPS)
 
     @property
     def mode(self) -> str:
@@ -129,12 +135,17 @@ class StepExecution:
             if self.phases.observe_images is not None:
                 self.graphs[2 + self.steps % 2].replay()
         else:
+            watch = self.python_state if self.python_state is not None and self.python_state.watching(
+                self.steps) else None
+            state = watch.snapshot() if watch is not None else None
             self.before(actions)
             self.physics()
             self.after()
             self.phases.render(self.steps)
             if self.phases.observe_images is not None:
                 self.phases.observe_images(self.steps)
+            if watch is not None:
+                watch.compare(state, self.steps)
         self.steps += 1
 
     def _first_compiled_call(self) -> None:

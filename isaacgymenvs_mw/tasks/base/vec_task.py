@@ -30,7 +30,7 @@ from isaacgymenvs_mw.sim import ModelRequest, Simulator, sim_dt
 from isaacgymenvs_mw.sim.stability import BlowupLog
 from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
 from isaacgymenvs_mw.tasks.base.display import Display
-from isaacgymenvs_mw.tasks.base.env_keys import episode_length, task_settings
+from isaacgymenvs_mw.tasks.base.env_keys import episode_length, joint_velocity_clamp, task_settings
 from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
 from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
@@ -84,6 +84,8 @@ class VecTask:
         self.max_episode_length, self.max_episode_length_s = episode_length(
             config["env"], self.control_dt, getattr(self, "max_episode_length", None))
         self.check_action_size()
+        # (joints,) speed limits of the robot's dof_vel columns (env.control.velocityClamp), or None
+        self.dof_velocity_clamp = joint_velocity_clamp(config["env"], self.sim.dof_names, self.device)
         self.randomizer.bind(self.sim)  # the randomisation layer, on the built model
         self.randomizer.setup_delay(settings.action_delay, self.num_actions)
         self.display = Display(self.sim, headless)
@@ -129,7 +131,7 @@ class VecTask:
             type(self).__name__, StepPhases(self._before_physics, self.sim.simulate, self._after_physics,
                                             self._render_cameras, images), self.cfg.get("sim", {}),
             graphs_possible=self.sim.use_graphs and torch.device(dev).type == "cuda" and self.rl_device == dev,
-            action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels,
+            action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels, task=self,
         )
 
     # -------------------------------------------------------------- properties
@@ -186,7 +188,7 @@ class VecTask:
 
     def state_terms(self) -> list[ObsTerm] | None:
         """The privileged critic state as named terms; ``numStates`` is their total (``numStates: 0`` in the YAML
-        turns the critic state off). None: no critic state, or one the task fills itself (``numStates`` > 0)."""
+        turns the critic state off). None or []: no critic state, or one the task fills itself (``numStates`` > 0)."""
         return None
 
     def image_terms(self) -> list[ImageTerm] | None:
@@ -327,6 +329,9 @@ class VecTask:
 
     def _after_physics(self) -> None:
         """Everything after the physics: device work only, no host sync (a CUDA graph when captured)."""
+        if self.dof_velocity_clamp is not None:  # before anything reads the speeds: the task sees clamped ones
+            # In place on the view of qvel: the next physics step starts from the clamped speeds.
+            self.sim.dof_vel.clamp_(min=-self.dof_velocity_clamp, max=self.dof_velocity_clamp)
         self.episode.after_physics(self.post_physics_step)
         self.randomizer.observations(self.obs_buf)
         self.randomizer.count_step()
