@@ -23,10 +23,12 @@ from itertools import chain
 
 import torch
 from rsl_rl.algorithms import PPO
+from rsl_rl.modules import EmpiricalNormalization
 from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
 from tensordict import TensorDict
 
+from isaacgymenvs_mw.learning.train_config import GRAD_CLIP_SCOPES, KL_FORMS, KL_SCHEDULES, one_of
 from isaacgymenvs_mw.utils.config import boolean, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -45,6 +47,39 @@ def bounds_loss(mean: torch.Tensor, soft_bound: float = SOFT_BOUND) -> torch.Ten
     above = torch.clamp(mean - soft_bound, min=0.0)
     below = torch.clamp(mean + soft_bound, max=0.0)
     return (above.pow(2) + below.pow(2)).sum(dim=-1).mean()
+
+
+# rl_games' policy_kl (rl_games/algos_torch/torch_ext.py) adds this to the std ratio inside its log and to the old
+# variance in its denominator.
+RL_GAMES_KL_EPS = 1e-5
+
+
+def rl_games_kl(old_mean: torch.Tensor, old_std: torch.Tensor, new_mean: torch.Tensor,
+                new_std: torch.Tensor) -> torch.Tensor:
+    """rl_games' KL divergence per sample, summed over actions: KL(new || old) of diagonal Gaussians with 1e-5 in
+    the log's ratio and in the old variance. Where the old std has collapsed (s**2 comparable to 1e-5) the terms
+    shrink by about s**2 / (s**2 + 1e-5), so one action whose noise has collapsed does not dominate the sum the way
+    it does in the exact KL, which rsl-rl-lib measures (KL(old || new), ``GaussianDistribution.kl_divergence``)."""
+    log_ratio = torch.log(old_std / new_std + RL_GAMES_KL_EPS)
+    spread = (new_std.square() + (old_mean - new_mean).square()) / (2.0 * (old_std.square() + RL_GAMES_KL_EPS))
+    return (log_ratio + spread - 0.5).sum(dim=-1)
+
+
+class ClippedEmpiricalNormalization(EmpiricalNormalization):
+    """rsl-rl-lib's observation normaliser whose output is clamped to +-``clip``, as rl_games' RunningMeanStd clamps
+    normalised inputs to +-5: one observation far outside what the statistics have seen (a contact spike, a cube
+    flung away) then cannot feed the first layer a value of hundreds. Same buffers as the normaliser it replaces, so
+    checkpoints load either way; exported policies (ONNX, TorchScript) copy it, clamp included."""
+
+    def __init__(self, source: EmpiricalNormalization, clip: float) -> None:
+        super().__init__(tuple(source._mean.shape[1:]), eps=source.eps, until=source.until)
+        self.to(source._mean.device)
+        self.load_state_dict(source.state_dict())
+        self.clip = clip
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        # written out rather than calling the parent's: TorchScript (the exported policy.pt) has no super()
+        return ((x - self._mean) / (self._std + self.eps)).clamp(-self.clip, self.clip)
 
 
 # rl_games' RunningMeanStd (rl_games/algos_torch/running_mean_std.py): variance epsilon, and the clamp of normalised
@@ -147,19 +182,44 @@ class SyncFreePPO(PPO):
     loss (clipped or not) is computed in normalised units and so is the logged ``value`` loss. The statistics are
     saved in checkpoints; exported policies (the actor) do not use them. Several GPUs: the batch moments are
     all-reduced, every rank keeps the same statistics.
+
+    rl_games' ways, each an option whose default is rsl-rl-lib's behaviour (docs/config.md, train YAML
+    ``algorithm.<key>``):
+
+    * ``kl_schedule``: ``per_mini_batch`` measures each mini-batch's KL against the rollout's policy and moves the
+      rate before that mini-batch's step (rsl-rl-lib). ``per_epoch`` is rl_games' ``schedule_type: standard``: each
+      sample's mean and std are stored as the mini-batch computes them, so from the second epoch on a mini-batch's
+      KL measures the change since that sample was last seen (the rollout's in the first epoch); the rate moves once
+      per epoch, after its last step, on the mean of its mini-batches' KLs, by rl_games' rule (no KL > 0 condition).
+      The stored means and stds are device buffers written in place, so the update stays captured.
+    * ``kl_form``: ``rsl_rl`` (the exact KL(old || new)) or ``rl_games`` (``rl_games_kl``).
+    * ``grad_clip_scope``: ``per_network`` clips the actor's and the critic's gradient norms separately
+      (rsl-rl-lib); ``global`` clips them together, as rl_games clips its one shared network.
+    * ``obs_normalization_clip``: ``None``, or clamp the normalised observations of every model with
+      ``obs_normalization`` to +-this (rl_games: 5, ``ClippedEmpiricalNormalization``).
     """
 
     def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0,
                  normalize_value: bool = False, learning_rate_min: float = LR_MIN, learning_rate_max: float = LR_MAX,
+                 kl_schedule: str = KL_SCHEDULES[0], kl_form: str = KL_FORMS[0],
+                 grad_clip_scope: str = GRAD_CLIP_SCOPES[0], obs_normalization_clip: float | None = None,
                  **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.learning_rate_min, self.learning_rate_max = self._check_rate_bounds(learning_rate_min, learning_rate_max)
+        self.kl_schedule = one_of(kl_schedule, "train.algorithm.kl_schedule", KL_SCHEDULES)
+        self.kl_form = one_of(kl_form, "train.algorithm.kl_form", KL_FORMS)
+        for name, value, default in (("kl_schedule", kl_schedule, KL_SCHEDULES[0]), ("kl_form", kl_form, KL_FORMS[0])):
+            if value != default:
+                self._refuse_without_adaptive(f"train.algorithm.{name}", value)
+        if self.kl_form == "rl_games":
+            self._need_gaussian("train.algorithm.kl_form=rl_games", "its KL is written for a mean and a std")
+        self.grad_clip_scope = one_of(grad_clip_scope, "train.algorithm.grad_clip_scope", GRAD_CLIP_SCOPES)
+        self._clip_observations(obs_normalization_clip)
         self.bounds_loss_coef = real_number(bounds_loss_coef, "train.algorithm.bounds_loss_coef", low=0)
         self.normalize_value = boolean(normalize_value, "train.algorithm.normalize_value")
         self.value_normalizer = ValueNormalizer(self.device) if self.normalize_value else None
-        if self.bounds_loss_coef > 0.0 and not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
-            raise ConfigError("train.algorithm.bounds_loss_coef > 0 needs a Gaussian action distribution "
-                              "(train.actor.distribution_cfg): it bounds the action means")
+        if self.bounds_loss_coef > 0.0:
+            self._need_gaussian("train.algorithm.bounds_loss_coef > 0", "it bounds the action means")
         unsupported = [key for key, used in (("rnd_cfg", self.rnd), ("symmetry_cfg", self.symmetry)) if used]
         if unsupported:
             raise ConfigError(
@@ -199,11 +259,41 @@ class SyncFreePPO(PPO):
         self._graph: torch.cuda.CUDAGraph | None = None
         self._graph_loss_sums: torch.Tensor | None = None
         self._eager_updates = 0
+        # kl_schedule=per_epoch: each sample's (mean, std) as last computed, allocated at the first update (the
+        # storage allocates its own on the first transition); feed-forward in the order of the shuffle, so that a
+        # mini-batch's share is a slice that its step writes in place.
+        self._kl_reference: tuple[torch.Tensor, ...] | None = None
         self._install_device_learning_rate()
 
     @property
     def _adaptive(self) -> bool:
         return self.desired_kl is not None and self.schedule == "adaptive"
+
+    def _refuse_without_adaptive(self, key: str, value) -> None:
+        """A setting of the adaptive rule given where the rate never moves: an error rather than silently ignored."""
+        if not self._adaptive:
+            raise ConfigError(
+                f"{key}={value!r} has no effect: the learning rate moves only with "
+                f"train.algorithm.schedule=adaptive and a train.algorithm.desired_kl (got "
+                f"schedule={self.schedule!r}, desired_kl={self.desired_kl!r}); remove it or set both")
+
+    def _need_gaussian(self, setting: str, why: str) -> None:
+        if not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
+            raise ConfigError(f"{setting} needs a Gaussian action distribution (train.actor.distribution_cfg): {why}")
+
+    def _clip_observations(self, clip) -> None:
+        """``obs_normalization_clip``: swap each model's observation normaliser for one that clamps its output."""
+        key = "train.algorithm.obs_normalization_clip"
+        if clip is None:
+            return
+        clip = real_number(clip, key, 0.0, low_open=True)
+        models = [m for m in (self._raw_actor, self._raw_critic)
+                  if isinstance(getattr(m, "obs_normalizer", None), EmpiricalNormalization)]
+        if not models:
+            raise ConfigError(f"{key}={clip!r} has no effect: neither train.actor.obs_normalization nor "
+                              "train.critic.obs_normalization is True; remove it or turn one on")
+        for model in models:
+            model.obs_normalizer = ClippedEmpiricalNormalization(model.obs_normalizer, clip)
 
     def _check_rate_bounds(self, low, high) -> tuple[float, float]:
         key = "train.algorithm.learning_rate"
@@ -212,10 +302,7 @@ class SyncFreePPO(PPO):
         if not self._adaptive:
             for name, value, default in (("min", low, LR_MIN), ("max", high, LR_MAX)):
                 if value != default:
-                    raise ConfigError(
-                        f"{key}_{name}={value!r} has no effect: the learning rate moves only with "
-                        f"train.algorithm.schedule=adaptive and a train.algorithm.desired_kl (got "
-                        f"schedule={self.schedule!r}, desired_kl={self.desired_kl!r}); remove it or set both")
+                    self._refuse_without_adaptive(f"{key}_{name}", value)
             return low, high
         if low > high:
             raise ConfigError(f"{key}_min={low!r} is invalid: give a number <= {key}_max ({high!r})")
@@ -285,9 +372,13 @@ class SyncFreePPO(PPO):
         # A captured update reads the old rate and optimizer state: capture again from the next update on.
         self.release_graph()
 
-    def _adapt_learning_rate(self, kl_mean: torch.Tensor) -> None:
+    def _adapt_learning_rate(self, kl_mean: torch.Tensor, rl_games_rule: bool = False) -> None:
         too_far = kl_mean > self.desired_kl * 2.0
-        too_close = (kl_mean < self.desired_kl / 2.0) & (kl_mean > 0.0)
+        too_close = kl_mean < self.desired_kl / 2.0
+        if not rl_games_rule:
+            # rsl-rl-lib's rule leaves the rate alone on a KL of 0 (an update's first mini-batch, its policy still
+            # the rollout's); rl_games' has no such condition, and its KL can be <= 0 where a std has collapsed.
+            too_close = too_close & (kl_mean > 0.0)
         lowered = torch.clamp(self._lr64 / LR_FACTOR, min=self.learning_rate_min)
         raised = torch.clamp(self._lr64 * LR_FACTOR, max=self.learning_rate_max)
         self._lr64.copy_(torch.where(too_far, lowered, torch.where(too_close, raised, self._lr64)))
@@ -334,9 +425,13 @@ class SyncFreePPO(PPO):
         Returns the device tensor of summed [value loss, surrogate loss, entropy] over the mini-batches; with a
         captured update it is the graph's output, overwritten by the next update.
         """
+        if self._per_epoch_kl and self._kl_reference is None:  # outside any capture: the first update is eager
+            params = self.storage.distribution_params  # type: ignore[union-attr]
+            self._kl_reference = tuple(
+                torch.empty_like(p) if self._recurrent else p.new_empty((self._num_samples, *p.shape[2:]))
+                for p in params)
         if self._recurrent:
-            return self._optimisation_steps(
-                self.storage.recurrent_mini_batch_generator(self.num_mini_batches, self.num_learning_epochs))
+            return self._optimisation_steps(self._recurrent_batches())
         # rsl-rl-lib's shuffle: one permutation per update, shared by its epochs
         torch.randperm(self._num_samples, out=self._perm)
         self._advantages.copy_(self.storage.advantages)
@@ -378,26 +473,54 @@ class SyncFreePPO(PPO):
             self._graph_loss_sums = self._optimisation_steps(self._feedforward_batches())
         self._graph = graph
 
+    @property
+    def _per_epoch_kl(self) -> bool:
+        return self._adaptive and self.kl_schedule == "per_epoch"
+
     def _feedforward_batches(self) -> Iterator[RolloutStorage.Batch]:
-        """The mini-batches of rsl-rl-lib's feed-forward generator, read through the fixed shuffle and advantages."""
+        """The mini-batches of rsl-rl-lib's feed-forward generator, read through the fixed shuffle and advantages.
+        With ``kl_schedule=per_epoch`` a batch's old distribution parameters are its slice of the stored ones (views
+        that ``_optimisation_steps`` overwrites), which start each update as the rollout's, in shuffled order."""
         st = self.storage
         size = self._num_samples // self.num_mini_batches
         observations = st.observations.flatten(0, 1)
         actions, values, returns = st.actions.flatten(0, 1), st.values.flatten(0, 1), st.returns.flatten(0, 1)
         old_log_prob, advantages = st.actions_log_prob.flatten(0, 1), self._advantages.flatten(0, 1)
         old_params = tuple(p.flatten(0, 1) for p in st.distribution_params)  # type: ignore[union-attr]
+        if self._per_epoch_kl:
+            for stored, rollout in zip(self._kl_reference, old_params):  # type: ignore[arg-type]
+                torch.index_select(rollout, 0, self._perm, out=stored)
         for _ in range(self.num_learning_epochs):
             for i in range(self.num_mini_batches):
                 idx = self._perm[i * size:(i + 1) * size]
+                reference = (tuple(p[i * size:(i + 1) * size] for p in self._kl_reference)  # type: ignore[union-attr]
+                             if self._per_epoch_kl else tuple(p[idx] for p in old_params))
                 yield RolloutStorage.Batch(
                     observations=observations[idx], actions=actions[idx], values=values[idx],  # type: ignore[arg-type]
                     advantages=advantages[idx], returns=returns[idx], old_actions_log_prob=old_log_prob[idx],
-                    old_distribution_params=tuple(p[idx] for p in old_params))
+                    old_distribution_params=reference)
+
+    def _recurrent_batches(self) -> Iterator[RolloutStorage.Batch]:
+        """rsl-rl-lib's recurrent mini-batches (contiguous blocks of envs); with ``kl_schedule=per_epoch`` their old
+        distribution parameters are the block of the stored ones, as in ``_feedforward_batches``."""
+        batches = self.storage.recurrent_mini_batch_generator(self.num_mini_batches, self.num_learning_epochs)
+        if not self._per_epoch_kl:
+            yield from batches
+            return
+        for stored, rollout in zip(self._kl_reference, self.storage.distribution_params):  # type: ignore[arg-type]
+            stored.copy_(rollout)
+        size = self.storage.num_envs // self.num_mini_batches
+        for k, batch in enumerate(batches):
+            i = k % self.num_mini_batches
+            batch.old_distribution_params = tuple(
+                p[:, i * size:(i + 1) * size] for p in self._kl_reference)  # type: ignore[union-attr]
+            yield batch
 
     def _optimisation_steps(self, batches: Iterable[RolloutStorage.Batch]) -> torch.Tensor:
-        adaptive = self._adaptive
+        adaptive, per_epoch = self._adaptive, self._per_epoch_kl
         loss_sums = torch.zeros(3, device=self.device)
-        for batch in batches:
+        epoch_kl = torch.zeros((), device=self.device)  # kl_schedule=per_epoch: the sum over the epoch's mini-batches
+        for k, batch in enumerate(batches):
             if self.normalize_advantage_per_mini_batch:
                 with torch.no_grad():
                     batch.advantages = (batch.advantages - batch.advantages.mean()) / (batch.advantages.std() + 1e-8)
@@ -411,8 +534,11 @@ class SyncFreePPO(PPO):
                 kl_mean = None
                 if adaptive:
                     with torch.no_grad():
-                        kl_mean = self.actor.get_kl_divergence(  # type: ignore[arg-type]
-                            batch.old_distribution_params, self.actor.output_distribution_params).mean()
+                        params = self.actor.output_distribution_params
+                        kl_mean = self._kl_mean(batch.old_distribution_params, params)  # type: ignore[arg-type]
+                        if per_epoch:  # what the next epoch measures its KL against (rl_games' update_mu_sigma)
+                            for stored, new in zip(batch.old_distribution_params, params):  # type: ignore[arg-type]
+                                stored.copy_(new)
                 surrogate_loss = self._surrogate_loss(log_prob, batch)
                 value_loss = self._value_loss(values, batch)
                 loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
@@ -425,7 +551,7 @@ class SyncFreePPO(PPO):
             loss.backward()
             if self.is_multi_gpu:
                 kl_mean = self._all_reduce_gradients(kl_mean)
-            if kl_mean is not None:
+            if kl_mean is not None and not per_epoch:
                 self._adapt_learning_rate(kl_mean)
             # One non-finite sample (a blown-up world's state, a return that overflowed) makes the loss or the
             # gradient NaN, and one Adam step with it makes every weight NaN for good: such a step is skipped on the
@@ -434,11 +560,24 @@ class SyncFreePPO(PPO):
             torch.logical_and(torch.isfinite(self._flat).all(), torch.isfinite(loss.detach()), out=self._step_ok)
             self.optimizer.found_inf = (~self._step_ok).float()
             self._skipped_steps += (~self._step_ok).long()
-            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
-            torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
+            if self.grad_clip_scope == "global":
+                torch.nn.utils.clip_grad_norm_(self._params, self.max_grad_norm)
+            else:
+                torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
             self.optimizer.step()
             loss_sums += torch.where(self._step_ok, losses, torch.zeros_like(losses))
+            if per_epoch:
+                epoch_kl += kl_mean  # type: ignore[operator]
+                if k % self.num_mini_batches == self.num_mini_batches - 1:  # the epoch's last step is taken
+                    self._adapt_learning_rate(epoch_kl / self.num_mini_batches, rl_games_rule=True)
+                    epoch_kl.zero_()
         return loss_sums
+
+    def _kl_mean(self, old_params: tuple[torch.Tensor, ...], new_params: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        if self.kl_form == "rl_games":
+            return rl_games_kl(*old_params, *new_params).mean()
+        return self.actor.get_kl_divergence(old_params, new_params).mean()
 
     def take_skipped_steps(self) -> int:
         """Optimiser steps skipped since the last call (a host read: call it where the iteration syncs anyway)."""

@@ -10,6 +10,19 @@ from isaacgymenvs_mw.utils.errors import ConfigError
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")  # the train YAML's sections, as OnPolicyRunner reads them
 
+# SyncFreePPO's rl_games options (learning/ppo.py): the first choice of each is the default, rsl-rl-lib's behaviour.
+KL_SCHEDULES = ("per_mini_batch", "per_epoch")
+KL_FORMS = ("rsl_rl", "rl_games")
+GRAD_CLIP_SCOPES = ("per_network", "global")
+
+
+def one_of(value, key: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``; anything else fails naming ``key`` and the choices."""
+    if not isinstance(value, str) or value not in choices:
+        raise ConfigError(f"{key}={value!r} is invalid: choose one of {list(choices)}")
+    return value
+
+
 # Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.
 _TRAIN_CHECKS = {
     ("runner", "num_steps_per_env"): lambda v, k: whole_number(v, k, 1),
@@ -27,6 +40,10 @@ _TRAIN_CHECKS = {
     ("algorithm", "entropy_coef"): lambda v, k: real_number(v, k),
     ("algorithm", "max_grad_norm"): lambda v, k: real_number(v, k, 0.0, low_open=True),
     ("algorithm", "use_clipped_value_loss"): boolean,
+    ("algorithm", "kl_schedule"): lambda v, k: one_of(v, k, KL_SCHEDULES),
+    ("algorithm", "kl_form"): lambda v, k: one_of(v, k, KL_FORMS),
+    ("algorithm", "grad_clip_scope"): lambda v, k: one_of(v, k, GRAD_CLIP_SCOPES),
+    ("algorithm", "obs_normalization_clip"): lambda v, k: v is None or real_number(v, k, 0.0, low_open=True),
     ("actor", "obs_normalization"): boolean,
     ("critic", "obs_normalization"): boolean,
 }
@@ -60,8 +77,7 @@ def check_train_config(train_cfg: dict, learner: str | None = None) -> None:
         if key in (train_cfg.get(section) or {}):
             check(train_cfg[section][key], f"train.{section}.{key}")
     schedule = (train_cfg.get("algorithm") or {}).get("schedule", "adaptive")
-    if schedule not in _SCHEDULES:
-        raise ConfigError(f"train.algorithm.schedule={schedule!r} is invalid: choose one of {list(_SCHEDULES)}")
+    one_of(schedule, "train.algorithm.schedule", _SCHEDULES)
     for section in ("actor", "critic"):
         dims = (train_cfg.get(section) or {}).get("hidden_dims", [])
         if not isinstance(dims, list) or not dims:
