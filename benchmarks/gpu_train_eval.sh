@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Train jobs side by side, one per GPU, each for a fixed training time, then evaluate its best and last checkpoints
+# in test mode on 1024 envs. Each job gets its own Warp, Inductor and Triton caches (a cold start, as on a new node).
+#
+#   benchmarks/gpu_train_eval.sh OUT_DIR TRAIN_SECONDS "NAME GPU TASK SEED [train.py overrides...]" ...
+#
+# Writes OUT_DIR/<NAME>.train.log, <NAME>.eval_best.log, <NAME>.eval_last.log, <NAME>.summary.json and
+# <NAME>.eval_{best,last}.json; OUT_DIR/<NAME>.done when the job has finished. The overrides go to training and
+# evaluation alike (learner=rl_games, train.* keys).
+set -u
+out=$1; seconds=$2; shift 2
+mkdir -p "$out"
+for spec in "$@"; do
+  read -r name gpu task seed extra <<<"$spec"
+  (
+    export CUDA_VISIBLE_DEVICES=$gpu PYTHONUNBUFFERED=1 WARP_CACHE_PATH=/tmp/cache/$name/warp \
+           TORCHINDUCTOR_CACHE_DIR=/tmp/cache/$name/inductor TRITON_CACHE_DIR=/tmp/cache/$name/triton
+    runs=/tmp/runs/$name
+    # shellcheck disable=SC2086  # the overrides are words
+    python train.py task="$task" seed="$seed" headless=True runs_dir="$runs" max_train_time_s="$seconds" \
+      $extra >"$out/$name.train.log" 2>&1
+    run_dir=$(dirname "$(ls -t "$runs"/*/*/summary.json | head -1)")
+    cp "$run_dir/summary.json" "$out/$name.summary.json"
+    last=$run_dir/$(ls "$run_dir" | grep -E '^model_[0-9]+(_interrupted)?\.pt$' | sort -t_ -k2 -n | tail -1)
+    for which in best last; do
+      ckpt=$run_dir/model_best.pt; [ "$which" = last ] && ckpt=$last
+      # shellcheck disable=SC2086
+      python train.py task="$task" seed=11 headless=True test=True num_envs=1024 checkpoint="$ckpt" $extra \
+        >"$out/$name.eval_$which.log" 2>&1
+      eval_json=$(ls -t "$run_dir"/eval*.json | head -1)
+      cp "$eval_json" "$out/$name.eval_$which.json"
+    done
+    touch "$out/$name.done"
+  ) &
+done
+wait
