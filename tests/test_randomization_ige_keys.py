@@ -137,6 +137,19 @@ def test_range_correlated_adds_an_offset_kept_for_frequency_steps():
     assert not torch.allclose(new, first)
 
 
+def test_range_correlated_actions_keep_their_offset_between_draws():
+    params = {"frequency": 4, "actions": {"range": [0.0, 0.0], "range_correlated": [-0.2, 0.2]}}
+    task = make("Cartpole", params, 8)
+    layer = task.randomizer
+    layer.step_count.fill_(1.0)
+    first = layer.actions(torch.zeros(8, 1))
+    layer.step_count.fill_(3.0)
+    torch.testing.assert_close(layer.actions(torch.zeros(8, 1)), first)
+    assert first.abs().max() <= 0.2 and len(torch.unique(first)) == 8
+    layer.step_count.fill_(4.0)
+    assert not torch.allclose(layer.actions(torch.zeros(8, 1)), first)
+
+
 @pytest.mark.parametrize("params, message", [
     ({"actor_params": {"cubeA": {"color": True}}},
      "task.task.randomization_params.actor_params.cubeA.color=True has no counterpart here: MuJoCo Warp renders no "
@@ -153,6 +166,10 @@ def test_range_correlated_adds_an_offset_kept_for_frequency_steps():
     ({"frequency": 0}, "task.task.randomization_params.frequency=0 is invalid: give a whole number >= 1"),
     ({"actor_params": {"dof_properties": {"damping": {"range": [0, 1], "num_buckets": 4}}}},
      "task.task.randomization_params.actor_params.dof_properties.damping: unknown key(s) ['num_buckets']"),
+    ({"actor_params": {"rigid_shape_properties": {"friction": {"range": [0.5, 1], "num_buckets": 4,
+                                                              "schedule": "linear", "schedule_steps": 10}}}},
+     "task.task.randomization_params.actor_params.rigid_shape_properties.friction.num_buckets=4 and "
+     "task.task.randomization_params.actor_params.rigid_shape_properties.friction.schedule='linear' cannot go together"),
     ({"actions": {"range_correlated": [0, 1]}},
      "task.task.randomization_params.actions.range_correlated=[0, 1] needs task.task.randomization_params.actions.range"),
 ])

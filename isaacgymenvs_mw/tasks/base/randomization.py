@@ -325,6 +325,9 @@ class Randomizer:
         spec = _parse_spec(raw, key, allowed)
         if "num_buckets" in raw:
             spec.buckets = whole_number(raw["num_buckets"], f"{key}.num_buckets", 1)
+            if spec.schedule is not None:  # the bucket values are drawn once, at startup, where a schedule is at 0
+                raise ConfigError(f"{key}.num_buckets={raw['num_buckets']!r} and {key}.schedule={spec.schedule!r} "
+                                  "cannot go together: the buckets are drawn once, at startup; give one of them")
         self._set_interval(spec, raw)
         if quantity.minimum is not None:
             self._check_positive(spec, quantity)
@@ -480,6 +483,8 @@ class Randomizer:
             raise ConfigError(f"{self.root}.observations.terms: noise of {bad} must be >= 0")
         layout = ObsLayout([replace(t, noise=t.noise + float(terms.get(t.name, 0.0)) * abs(t.scale))
                             for t in layout.terms])
+        if self.obs_corr is not None:
+            self.correlated["observations"] = self.sample(self.obs_corr, (self.num_envs, layout.size))
         scale = layout.noise_scale(self.device)
         self.term_noise = scale if bool((scale != 0).any()) else None
         return layout
@@ -541,7 +546,7 @@ class Randomizer:
         x = self.sample(spec, shape)
         if corr is None:
             return x
-        if name not in self.correlated:  # the first step runs eagerly, before any capture
+        if name not in self.correlated or self.correlated[name].shape != shape:  # else at the first (eager) step
             self.correlated[name] = self.sample(corr, shape)
         offsets = self.correlated[name]
         due = torch.remainder(self.step_count, self.frequency) == 0
@@ -558,6 +563,8 @@ class Randomizer:
         if nominal < 0:
             raise ConfigError(f"env.control.actionDelay={nominal} is invalid: give a whole number of policy steps >= 0")
         self.nominal_delay = int(nominal)
+        if self.action_corr is not None:
+            self.correlated["actions"] = self.sample(self.action_corr, (self.num_envs, num_actions))
         self.max_delay = self.nominal_delay + (int(self.delay_spec.hi) if self.delay_spec is not None else 0)
         self.delay = torch.full((self.num_envs,), self.nominal_delay, dtype=torch.long, device=self.device)
         if self.max_delay:
