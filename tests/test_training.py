@@ -205,6 +205,38 @@ def test_the_best_checkpoint_follows_the_smoothed_metric_not_the_last(tmp_path, 
     assert (tmp_path / "model_best.pt").read_bytes() == b"weights of iteration 20"
 
 
+@pytest.mark.parametrize("values, line", [([0.5] * 30, True), ([0.9 - 0.01 * i for i in range(30)], True),
+                                          ([0.01 * i for i in range(30)], False)])
+def test_a_best_checkpoint_that_is_the_first_one_says_so(tmp_path, values, line):
+    from isaacgymenvs_mw.learning.runner import BestCheckpoint
+
+    best = BestCheckpoint(tmp_path, "auto", ["Episode/success"])
+    history = []
+    for i, value in enumerate(values, start=1):
+        history.append({"iteration": i, "Episode/success": value})
+        if i % 10 == 0:
+            (tmp_path / f"model_{i}.pt").write_bytes(b"w")
+            best.consider(history, str(tmp_path / f"model_{i}.pt"))
+    if line:  # flat or falling: model_best.pt is model_10.pt, and the console line says so and what to do
+        assert best.summary()["iteration"] == 10
+        assert best.never_moved() == (
+            f"[train] model_best.pt is a copy of the first checkpoint, model_10.pt: Episode/success never rose above "
+            f"its value there ({best.value:.4g}) in 2 later checkpoints; evaluate model_30.pt, or follow "
+            "another metric (sweep_metric)")
+    else:
+        assert best.summary()["iteration"] == 30 and best.never_moved() is None
+
+
+def test_the_end_of_training_says_when_the_best_checkpoint_is_the_first(tmp_path, run_args, capsys):
+    # Episodes of 100 s never time out in 4 iterations of 16 steps: timeout_fraction stays 0 at every checkpoint.
+    run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=4", "train.runner.save_interval=2",
+                        "train.runner.num_steps_per_env=16", "task.env.episodeLength_s=100", "task.env.resetDist=0.01",
+                        "sweep_metric=timeout_fraction", *run_args]))
+    out = capsys.readouterr().out
+    assert ("[train] model_best.pt is a copy of the first checkpoint, model_2.pt: timeout_fraction never rose above "
+            "its value there (0) in 1 later checkpoint; evaluate model_4.pt") in out
+
+
 @pytest.mark.parametrize("std_type", ["scalar", "log"])
 def test_the_history_records_the_action_noise_the_checkpoint_holds(tmp_path, run_args, std_type):
     summary = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=2",

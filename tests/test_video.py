@@ -196,6 +196,7 @@ def test_train_and_test_mode_capture_video(tmp_path):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "capture_video=True",
            "capture_video_freq=16", "capture_video_len=8", "max_iterations=2", "num_envs=4", "headless=True",
+           "train.runner.save_interval=1",  # model_1.pt too: an earlier checkpoint for test mode below
            "sim_device=cpu", "rl_device=cpu", f"runs_dir={runs}"]
     proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"})
@@ -224,6 +225,16 @@ def test_train_and_test_mode_capture_video(tmp_path):
     assert sorted(p.name for p in (run_dir / "videos_eval").iterdir()) == ["video_1.mp4"]
     frames, _ = read_video(run_dir / "videos_eval" / "video_1.mp4")
     assert frames.shape == (4, 480, 640, 3) and drawn(frames[-1])
+
+    # an earlier checkpoint films into its own folder: the last checkpoint's video stays as it was (issue 59)
+    last_video = (run_dir / "videos_eval" / "video_1.mp4").read_bytes()
+    cmd[cmd.index(f"checkpoint={run_dir / 'model_2.pt'}")] = f"checkpoint={run_dir / 'model_1.pt'}"
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert sorted(p.name for p in (run_dir / "videos_eval_model_1").iterdir()) == ["video_1.mp4"]
+    assert (run_dir / "videos_eval" / "video_1.mp4").read_bytes() == last_video
+    assert sorted(p.name for p in (run_dir / "videos_eval").iterdir()) == ["video_1.mp4"]
 
 
 GL_ATTEMPTS = """

@@ -88,6 +88,7 @@ def test_test_mode_exports_onnx_and_torchscript_matching_the_policy(trained_cart
 
     def spy_evaluate(task, *args, **kwargs):
         seen["schedule_steps"] = float(task.randomizer.step_count)
+        seen["env_steps"] = task.env_steps.clone()
         return original_evaluate(task, *args, **kwargs)
 
     monkeypatch.setattr(launch, "evaluate", spy_evaluate)
@@ -95,6 +96,8 @@ def test_test_mode_exports_onnx_and_torchscript_matching_the_policy(trained_cart
     # Test mode evaluates under the schedules' state at the checkpoint, not at their start.
     trained = load_ckpt(ckpt)["iter"] * int(compose_config(cartpole_args(tmp_path)).train.runner.num_steps_per_env)
     assert trained > 0 and seen["schedule_steps"] == trained
+    # The documented counter of the run's env steps (all envs) reads the same: the checkpoint's, not 0.
+    assert seen["env_steps"].dtype == torch.int64 and int(seen["env_steps"]) == trained * N
     onnx_path, jit_path = out_dir / "policy.onnx", out_dir / "policy.pt"
     assert onnx_path.is_file() and jit_path.is_file()
 
@@ -177,7 +180,8 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
         at_start.update(actor={k: v.clone() for k, v in saved["actor_state_dict"].items()},
                         critic={k: v.clone() for k, v in saved["critic_state_dict"].items()},
                         iteration=self.current_learning_iteration,
-                        schedule_steps=float(self.env.task.randomizer.step_count))
+                        schedule_steps=float(self.env.task.randomizer.step_count),
+                        env_steps=int(self.env.task.env_steps))
         return original_learn(self, *args, **kwargs)
 
     monkeypatch.setattr(Runner, "learn", spy_learn)
@@ -205,6 +209,7 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
     # penalty curriculum from the checkpoint's env steps per env (3 iterations of `steps`), not from 0.
     assert at_start["iteration"] == 3
     assert at_start["schedule_steps"] == 3 * steps
+    assert at_start["env_steps"] == 3 * steps * N  # VecTask.env_steps: the run's env steps over all envs
     for part in ("actor", "critic"):
         for key, value in state3[f"{part}_state_dict"].items():
             assert torch.equal(at_start[part][key], value), (part, key)

@@ -182,6 +182,8 @@ def _report_end(summary: dict, runner: TrainingRun, run_dir: Path, interrupted: 
     ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
     print(f"[train] {ended} {summary['wall_time_s']:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
           f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
+    if runner.best is not None and runner.best.never_moved():
+        print(runner.best.never_moved(), flush=True)
     if interrupted is None:
         return
     if runner.interrupted_checkpoint is not None:

@@ -230,6 +230,7 @@ class BestCheckpoint:
         self.value: float | None = None
         self.iteration: int | None = None
         self.source: str | None = None
+        self.candidates: list[str] = []  # the saved checkpoints that had the metric, in order
 
     def consider(self, history: list[dict], checkpoint: str) -> None:
         """``checkpoint`` was just saved after the last iteration of ``history``: keep it if its metric is the
@@ -241,9 +242,21 @@ class BestCheckpoint:
         if not values:  # no episode has ended yet
             return
         value = smoothed(values)[-1]  # the sweep's trailing mean, as its "best" column reads it
+        if checkpoint not in self.candidates[-1:]:  # the last iteration's may be saved twice (interval, end)
+            self.candidates.append(checkpoint)
         if self.value is None or value > self.value:
             shutil.copyfile(checkpoint, self.path)
             self.value, self.iteration, self.source = value, int(history[-1]["iteration"]), checkpoint
+
+    def never_moved(self) -> str | None:
+        """The console line when no later checkpoint beat the first (model_best.pt is then the first), else None."""
+        if len(self.candidates) < 2 or self.source != self.candidates[0]:
+            return None
+        later = len(self.candidates) - 1
+        return (f"[train] {self.path.name} is a copy of the first checkpoint, {Path(self.source).name}: {self.key} "
+                f"never rose above its value there ({self.value:.4g}) in {later} later checkpoint"
+                f"{'s' if later > 1 else ''}; evaluate {Path(self.candidates[-1]).name}, or follow another metric "
+                "(sweep_metric)")
 
     def summary(self) -> dict | None:
         """summary.json's "best_checkpoint" (None before any checkpoint had the metric)."""

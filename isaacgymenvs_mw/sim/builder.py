@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from isaacgymenvs_mw.sim.cameras import CameraSpec
+from isaacgymenvs_mw.sim.geom_contacts import GeomContact, add_average_friction_pairs, set_geom_contacts
 from isaacgymenvs_mw.sim.names import compile_pattern, name_matches, no_match_error
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX
 from isaacgymenvs_mw.sim.sensors import ContactForces, Sensor
@@ -99,15 +100,6 @@ class SceneAsset:
 
 
 @dataclass
-class GeomContact:
-    """How a geom touches others: MuJoCo's condim (1 frictionless, 3 sliding friction, 4 + torsional, 6 + rolling)
-    and friction (sliding, torsional, rolling); None keeps the file's."""
-
-    condim: int | None = None
-    friction: Sequence[float] | None = None
-
-
-@dataclass
 class ModelRequest:
     """Everything needed to build the task's model."""
 
@@ -141,6 +133,8 @@ class ModelRequest:
     assets: Sequence[SceneAsset] = ()
     # {geom name regex: GeomContact}: contact properties of the selected geoms of the whole scene (env.contact).
     geom_contacts: Mapping[str, "GeomContact"] = field(default_factory=dict)
+    # (geom regex, geom regex) pairs whose contacts average the two frictions as PhysX does (env.averageFriction).
+    average_friction: Sequence[tuple[str, str]] = ()
     # Cameras (env.cameras, sim/cameras.py): sensors refreshed by the render, added on their bodies once the scene
     # is composed (all_sensors).
     cameras: Sequence[CameraSpec] = ()
@@ -322,7 +316,8 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         contype, conaffinity = _set_collision_filter(spec, False, True)  # now the objects' geoms count too
         for geom in ground:
             geom.contype, geom.conaffinity = contype, conaffinity
-    _set_geom_contacts(spec, request.geom_contacts)
+    set_geom_contacts(spec, request.geom_contacts)
+    add_average_friction_pairs(spec, request.average_friction)
     for body_name in request.contact_bodies:
         if spec.body(body_name) is None:
             raise ConfigError(f"contact body '{body_name}' is not a body of {request.asset_file}")
@@ -539,19 +534,6 @@ def _override_actuators(spec: mujoco.MjSpec, patterns: Mapping[str, object], key
                                  " by actuator name or by the joint it drives")
         for act in hits:
             apply(act, value, f"{key}.{pattern}")
-
-
-def _set_geom_contacts(spec: mujoco.MjSpec, contacts: Mapping[str, GeomContact]) -> None:
-    """``env.contact``: each pattern's condim / friction on every geom of the scene whose whole name it matches
-    (scene assets' prefixed names included)."""
-    geoms = [g for g in spec.geoms if g.name]
-    names = [g.name for g in geoms]
-    for pattern, contact in contacts.items():
-        for i in name_matches(pattern, names, f"env.contact.{pattern}", "geoms"):
-            if contact.condim is not None:
-                geoms[i].condim = int(contact.condim)
-            if contact.friction is not None:
-                geoms[i].friction = list(contact.friction)
 
 
 def _set_gear(act: mujoco.MjsActuator, value: object, key: str) -> None:

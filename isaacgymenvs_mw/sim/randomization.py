@@ -66,6 +66,7 @@ class ModelProperty:
     elements: str | None
     writes: tuple[FieldWrite, ...]
     torque_speed: bool = False  # a parameter of the drives' torque-speed limit (sim.torque_speed), not a Model field
+    per_joint: bool = False  # a joints property held per joint (jnt_*), not per dof (dof_*)
 
     @property
     def changes_inertia(self) -> bool:
@@ -82,7 +83,13 @@ MODEL_PROPERTIES: dict[str, ModelProperty] = {
     "bodies.inertia": ModelProperty("bodies", (FieldWrite("body_inertia"),)),
     # Column 0 is the sliding friction; 1 and 2 are torsional and rolling.
     "geoms.friction": ModelProperty("geoms", (FieldWrite("geom_friction", 0),)),
+    "geoms.torsional_friction": ModelProperty("geoms", (FieldWrite("geom_friction", 1),)),
+    "geoms.rolling_friction": ModelProperty("geoms", (FieldWrite("geom_friction", 2),)),
     "joints.damping": ModelProperty("joints", (FieldWrite("dof_damping"),)),
+    "joints.friction": ModelProperty("joints", (FieldWrite("dof_frictionloss"),)),
+    # A joint's range (MuJoCo's limit constraint; only a limited joint has one).
+    "joints.lower": ModelProperty("joints", (FieldWrite("jnt_range", 0),), per_joint=True),
+    "joints.upper": ModelProperty("joints", (FieldWrite("jnt_range", 1),), per_joint=True),
     "joints.armature": ModelProperty("joints", (FieldWrite("dof_armature"),)),
     # An actuator's force is gainprm[0] * ctrl + biasprm[0] + biasprm[1] * q + biasprm[2] * qdot; for a position
     # servo kp = gainprm[0] = -biasprm[1] and kd = -biasprm[2].
@@ -126,9 +133,27 @@ def element_ids(m: mujoco.MjModel, prop: ModelProperty, selector: str | None, pa
     element = [ids[i] for i in chosen]
     if kind == "bodies" and prop.elements == "geoms":
         element = [g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in element]
-    elif kind == "joints":
+    elif kind == "joints" and not prop.per_joint:
         element = [int(m.jnt_dofadr[j]) for j in element]
     return torch.tensor(sorted(set(element)), dtype=torch.long, device=device)
+
+
+def actor_elements(m: mujoco.MjModel, prop: ModelProperty, index: torch.Tensor, prefix: str | None,
+                   prefixes: Sequence[str]) -> torch.Tensor:
+    """The entries of ``index`` (as ``element_ids`` returns them) that belong to one actor of the scene: a scene
+    asset's (names starting with its ``prefix``) or, with ``prefix`` None, the main asset's (none of ``prefixes``).
+    Bodies, geoms and joints belong to the actor of their body; actuators go by their own name."""
+    def owned(name: str) -> bool:
+        return name.startswith(prefix) if prefix is not None else not any(name.startswith(p) for p in prefixes)
+
+    if prop.elements == "actuators":
+        names = [mujoco.mj_id2name(m, _OBJECTS["actuators"], int(i)) or "" for i in index.tolist()]
+        return index[torch.tensor([owned(n) for n in names], dtype=torch.bool, device=index.device)]
+    body_of = {"bodies": lambda i: i, "geoms": lambda i: int(m.geom_bodyid[i]),
+               "joints": (lambda i: int(m.jnt_bodyid[i])) if prop.per_joint else (lambda i: int(m.dof_bodyid[i]))}
+    keep = [b > 0 and owned(mujoco.mj_id2name(m, _OBJECTS["bodies"], b) or "")
+            for b in (body_of[prop.elements](int(i)) for i in index.tolist())]
+    return index[torch.tensor(keep, dtype=torch.bool, device=index.device)]
 
 
 def write_view(sim: Simulator, write: FieldWrite, torque_speed: bool, key: str) -> torch.Tensor:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, ModelRequest, SceneAsset,
                                           SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names,
@@ -88,6 +88,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None, assets
         spec=spec,
         assets=scene_assets(env.get("assets"), yaml_dir, assets_dir, collapse),
         geom_contacts=geom_contacts(env.get("contact")),
+        average_friction=average_friction_pairs(env.get("averageFriction")),
         cameras=camera_specs(env.get("cameras")),
         sensors=sensor_specs(env.get("sensors")),
         stability_probe=stability_probe(sim),
@@ -96,6 +97,19 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None, assets
 
 
 CONDIMS = (1, 3, 4, 6)
+
+
+def average_friction_pairs(cfg: object) -> list[tuple[str, str]]:
+    """``env.averageFriction``: a list of [geom regex, geom regex] pairs (sim/geom_contacts.py). Whether each pattern
+    selects a geom is checked when the scene is composed."""
+    if not cfg:
+        return []
+    entries = list(cfg) if isinstance(cfg, Sequence) and not isinstance(cfg, str) else None
+    if entries is None or not all(isinstance(e, Sequence) and not isinstance(e, str) and len(e) == 2
+                                  for e in entries):
+        raise ConfigError(f"env.averageFriction={cfg!r} is invalid: give a list of [geom regex, geom regex] pairs, "
+                          "e.g. [['cube', 'table']]")
+    return [(str(a), str(b)) for a, b in entries]
 
 
 def geom_contacts(cfg: Mapping | None) -> dict[str, GeomContact]:

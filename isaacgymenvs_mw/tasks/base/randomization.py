@@ -4,7 +4,9 @@ The vocabulary is IsaacGymEnvs' where it maps: ``observations`` and ``actions`` 
 ``actor_params`` grouped as ``rigid_body_properties`` / ``rigid_shape_properties`` / ``dof_properties`` (plus our
 ``actuator_properties``), each quantity with ``range``, ``distribution`` (uniform | gaussian | loguniform),
 ``operation`` (additive | scaling) and an optional ``schedule`` (linear | constant) over ``schedule_steps`` env
-steps. Ours on top: what a quantity applies to (``bodies`` / ``geoms`` / ``joints`` / ``actuators``: names or regular
+steps; also IsaacGymEnvs' per-actor level (``actor_params.<actor>.<group>``), ``frequency``, ``range_correlated``,
+``setup_only`` and ``num_buckets``, and a one-line refusal of its keys with no MuJoCo counterpart (``REFUSED``). Ours on
+top: what a quantity applies to (``bodies`` / ``geoms`` / ``joints`` / ``actuators``: names or regular
 expressions), when it is drawn (``apply``: startup | reset | interval), per-term observation noise, an action delay
 and pushes. docs/config.md lists every key.
 
@@ -25,20 +27,35 @@ from isaacgymenvs_mw.sim import InertiaConstants, Simulator, ground_geoms
 from isaacgymenvs_mw.sim.randomization import (
     MODEL_PROPERTIES,
     ModelProperty,
+    actor_elements,
     element_ids,
     per_world_fields,
     write_view,
 )
 from isaacgymenvs_mw.tasks.base.observations import ObsLayout
+from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 DISTRIBUTIONS = ("uniform", "gaussian", "loguniform")
 OPERATIONS = ("additive", "scaling")
 SCHEDULES = ("linear", "constant")
 APPLY = ("startup", "reset", "interval")
-SECTIONS = ("observations", "actions", "sim_params", "actor_params", "push")
+SECTIONS = ("frequency", "observations", "actions", "sim_params", "actor_params", "push")
 NOISE_KEYS = ("range", "distribution", "operation", "schedule", "schedule_steps")
-DRAW_KEYS = NOISE_KEYS + ("apply", "interval_s", "interval_steps")
+DRAW_KEYS = NOISE_KEYS + ("apply", "setup_only", "interval_s", "interval_steps")
+# The actor that ``actor_params.<actor>`` names for the main asset (env.asset); scene assets go by their env.assets name.
+MAIN_ACTOR = "asset"
+# IsaacGymEnvs keys with no MuJoCo counterpart: refused in one line saying why (docs/porting.md has the same rows).
+REFUSED = {
+    "color": "MuJoCo Warp renders no per-env colours for randomisation; remove it",
+    "scale": "MuJoCo Warp shares one geometry (meshes, collision bounds) between worlds, so an actor cannot be "
+             "resized per env; remove it, or build differently sized assets as separate env.assets",
+    "restitution": "MuJoCo's contacts are soft constraints without a restitution coefficient; remove it",
+    "compliance": "MuJoCo's contact softness is solref / solimp (env.contact and the MJCF), not randomised here",
+    "velocity": "MuJoCo has no joint velocity limit to randomise; remove it",
+    "effort": "randomise the drives' force with actuator_properties.gain (or torque_limit with "
+              "env.control.torqueSpeed)",
+}
 # Smallest value a quantity that must stay positive is given (MuJoCo Warp turns a zero friction into NaN).
 POSITIVE_FLOOR = 1e-3
 
@@ -70,10 +87,15 @@ QUANTITIES: dict[str, dict[str, Quantity]] = {
     },
     "rigid_shape_properties": {
         "friction": _quantity("geoms.friction", minimum=POSITIVE_FLOOR),
+        "torsion_friction": _quantity("geoms.torsional_friction", minimum=0.0),
+        "rolling_friction": _quantity("geoms.rolling_friction", minimum=0.0),
     },
     "dof_properties": {
         "damping": _quantity("joints.damping", minimum=0.0),
         "armature": _quantity("joints.armature", minimum=0.0),
+        "friction": _quantity("joints.friction", minimum=0.0),
+        "lower": _quantity("joints.lower"),
+        "upper": _quantity("joints.upper"),
     },
     "actuator_properties": {
         "stiffness": _quantity("actuators.stiffness", minimum=0.0),
@@ -102,6 +124,7 @@ class Spec:
     schedule_steps: int = 0
     apply: str = "reset"
     interval: int = 0
+    buckets: int = 0  # num_buckets: draws take one of this many values drawn once at startup (0: every draw new)
 
     def identity(self) -> float:
         return 0.0 if self.operation == "additive" else 1.0
@@ -118,6 +141,7 @@ class Param:
     views: list[tuple[torch.Tensor, float]] = field(default_factory=list)  # (field view (W, ...), sign)
     # Column of the draw each selected element takes (None: one draw each); a terrain's ground parts share one.
     draw_of: torch.Tensor | None = None
+    bucket_values: torch.Tensor | None = None  # the num_buckets values draws pick from
 
 
 def _parse_spec(raw: Any, key: str, allowed: tuple[str, ...], operations: tuple[str, ...] = OPERATIONS,
@@ -156,6 +180,10 @@ def _parse_spec(raw: Any, key: str, allowed: tuple[str, ...], operations: tuple[
     elif "schedule_steps" in raw:
         raise ConfigError(f"{key}.schedule_steps is set but {key}.schedule is not (linear or constant)")
     apply = str(raw.get("apply", default_apply))
+    if raw.get("setup_only", False):  # IsaacGymEnvs' name for a draw made once, when the task is built
+        if raw.get("apply", "startup") != "startup":
+            raise ConfigError(f"{key}.setup_only=True and {key}.apply={apply!r} disagree: give one of them")
+        apply = "startup"
     if apply not in APPLY:
         raise ConfigError(f"{key}.apply={apply!r} is invalid: give one of {list(APPLY)}")
     return Spec(key, distribution, operation, lo, hi, schedule, steps, apply)
@@ -193,8 +221,13 @@ class Randomizer:
                               f"{list(SECTIONS)}")
         self.root, self.control_dt, self.num_envs, self.device = root, control_dt, num_envs, device
         self.raw = params
-        self.obs_noise, self.obs_terms = self._parse_noise("observations", extra=("terms",))
-        self.action_noise, delay_raw = self._parse_noise("actions", extra=("delay",))
+        # IsaacGymEnvs' frequency: env steps an env's reset-time draws wait since its last draw, and between new
+        # correlated noise offsets.
+        self.frequency = whole_number(params.get("frequency", 1), f"{root}.frequency", 1)
+        self.since_draw = torch.zeros(num_envs, dtype=torch.long, device=device)
+        self.correlated: dict[str, torch.Tensor] = {}
+        (self.obs_noise, self.obs_corr), self.obs_terms = self._parse_noise("observations", extra=("terms",))
+        (self.action_noise, self.action_corr), delay_raw = self._parse_noise("actions", extra=("delay",))
         self.delay_spec = None
         if delay_raw is not None:
             self.delay_spec = _parse_spec(delay_raw, f"{root}.actions.delay", DRAW_KEYS, operations=("additive",))
@@ -209,18 +242,19 @@ class Randomizer:
             self.push_spec = _parse_spec(raw, f"{root}.push", NOISE_KEYS + ("interval_s", "interval_steps"),
                                          operations=("set", "additive"), default_apply="interval")
             self.push_spec.interval = _interval_steps(raw, f"{root}.push", control_dt)
-        # Model quantities: (spec, quantity, selector patterns), bound to the model in bind().
-        self.entries: list[tuple[Spec, Quantity, list[str] | None, str | None]] = []
+        # Model quantities: (spec, quantity, selector patterns, selector, actor), bound to the model in bind().
+        self.entries: list[tuple[Spec, Quantity, list[str] | None, str | None, str | None]] = []
         for name, raw in dict(params.get("sim_params") or {}).items():
             key = f"{root}.sim_params.{name}"
             if name not in SIM_QUANTITIES:
                 raise ConfigError(f"{key}: unknown parameter; valid: {list(SIM_QUANTITIES)}")
             self._add_entry(raw, key, SIM_QUANTITIES[name])
-        for group, quantities in dict(params.get("actor_params") or {}).items():
-            if group not in QUANTITIES:
-                raise ConfigError(f"{root}.actor_params.{group}: unknown group; valid: {list(QUANTITIES)}")
+        for group, quantities, actor in self._actor_groups(dict(params.get("actor_params") or {})):
+            where = f"{root}.actor_params.{actor + '.' if actor else ''}{group}"
             for name, raw in dict(quantities or {}).items():
-                key = f"{root}.actor_params.{group}.{name}"
+                key = f"{where}.{name}"
+                if name in REFUSED:
+                    raise ConfigError(f"{key}={raw!r} has no counterpart here: {REFUSED[name]}")
                 if name not in QUANTITIES[group]:
                     hint = (" (a position drive's gains are actuator_properties.stiffness / damping)"
                             if group == "dof_properties" and name == "stiffness" else "")
@@ -228,7 +262,7 @@ class Randomizer:
                                      f"{list(QUANTITIES[group])}{hint}")
                 for i, item in enumerate(raw if isinstance(raw, list) else [raw]):
                     self._add_entry(item, key if not isinstance(raw, list) else f"{key}[{i}]",
-                                    QUANTITIES[group][name])
+                                    QUANTITIES[group][name], actor)
         self.params: list[Param] = []
         self.sim: Simulator | None = None
         self.step_count = torch.zeros((), device=device, dtype=torch.float32)
@@ -236,17 +270,47 @@ class Randomizer:
         self.max_delay = 0
 
     # ------------------------------------------------------------------ parsing
-    def _parse_noise(self, section: str, extra: tuple[str, ...]) -> tuple[Spec | None, Any]:
+    def _actor_groups(self, params: dict) -> list[tuple[str, Any, str | None]]:
+        """(group, its quantities, actor or None) of ``actor_params``: a group at the top applies to the whole scene;
+        IsaacGymEnvs' per-actor level ``<actor>.<group>`` to one actor (an env.assets name, or MAIN_ACTOR)."""
+        out = []
+        for name, node in params.items():
+            if name in QUANTITIES:
+                out.append((name, node, None))
+                continue
+            key = f"{self.root}.actor_params.{name}"
+            if not isinstance(node, dict):
+                raise ConfigError(f"{key}={node!r} is invalid: give a group of {list(QUANTITIES)}, or an actor "
+                                  f"('{MAIN_ACTOR}' or an env.assets name) holding such groups")
+            for group, quantities in node.items():
+                if group in REFUSED:
+                    raise ConfigError(f"{key}.{group}={quantities!r} has no counterpart here: {REFUSED[group]}")
+                if group not in QUANTITIES:
+                    raise ConfigError(f"{key}.{group}: unknown group; valid: {list(QUANTITIES)}")
+                out.append((group, quantities, str(name)))
+        return out
+
+    def _parse_noise(self, section: str, extra: tuple[str, ...]) -> tuple[tuple[Spec | None, Spec | None], Any]:
+        """(noise spec, correlated spec) of the observations or actions section, and its extra key's value."""
         raw = self.raw.get(section)
         if raw is None:
-            return None, None
+            return (None, None), None
         key = f"{self.root}.{section}"
         if not isinstance(raw, dict):
             raise ConfigError(f"{key}: expected a mapping, got {raw!r}")
-        noise = {k: v for k, v in raw.items() if k not in extra}
+        noise = {k: v for k, v in raw.items() if k not in extra and k != "range_correlated"}
         spec = _parse_spec(noise, key, NOISE_KEYS) if noise else None
+        corr = None
+        if "range_correlated" in raw:
+            if spec is None:
+                raise ConfigError(f"{key}.range_correlated={raw['range_correlated']!r} needs {key}.range (the "
+                                  "noise it is added to)")
+            # IsaacGymEnvs' correlated noise: an offset per env and column, kept for `frequency` steps, added to the
+            # per-step draw; its schedule shrinks it towards no offset.
+            corr = _parse_spec({**noise, "range": raw["range_correlated"], "operation": "additive"},
+                               f"{key}.range_correlated", NOISE_KEYS)
         extras = [raw.get(k) for k in extra]
-        return spec, (extras[0] if extras else None)
+        return (spec, corr), (extras[0] if extras else None)
 
     def _set_interval(self, spec: Spec, raw: dict) -> None:
         if spec.apply == "interval":
@@ -254,11 +318,16 @@ class Randomizer:
         elif "interval_s" in raw or "interval_steps" in raw:
             raise ConfigError(f"{spec.key}: interval_s / interval_steps need apply: interval")
 
-    def _add_entry(self, raw: Any, key: str, quantity: Quantity) -> None:
+    def _add_entry(self, raw: Any, key: str, quantity: Quantity, actor: str | None = None) -> None:
         allowed = DRAW_KEYS + ((quantity.selects,) if quantity.selects else ())
         if quantity.selects == "geoms":
-            allowed += ("bodies",)
+            allowed += ("bodies", "num_buckets")  # PhysX's material buckets: meaningful for surfaces only
         spec = _parse_spec(raw, key, allowed)
+        if "num_buckets" in raw:
+            spec.buckets = whole_number(raw["num_buckets"], f"{key}.num_buckets", 1)
+            if spec.schedule is not None:  # the bucket values are drawn once, at startup, where a schedule is at 0
+                raise ConfigError(f"{key}.num_buckets={raw['num_buckets']!r} and {key}.schedule={spec.schedule!r} "
+                                  "cannot go together: the buckets are drawn once, at startup; give one of them")
         self._set_interval(spec, raw)
         if quantity.minimum is not None:
             self._check_positive(spec, quantity)
@@ -270,7 +339,7 @@ class Randomizer:
                     raise ConfigError(f"{key}: give either {selector} or {name}, not both")
                 selector, value = name, raw[name]
                 patterns = [value] if isinstance(value, str) else [str(v) for v in value]
-        self.entries.append((spec, quantity, patterns, selector))
+        self.entries.append((spec, quantity, patterns, selector, actor))
 
     @staticmethod
     def _check_positive(spec: Spec, quantity: Quantity) -> None:
@@ -286,17 +355,21 @@ class Randomizer:
     # ------------------------------------------------------------------ binding
     def per_world_fields(self) -> tuple[str, ...]:
         """Model fields the simulator must batch per world for the configured quantities."""
-        return per_world_fields([quantity.prop for _, quantity, _, _ in self.entries])
+        return per_world_fields([entry[1].prop for entry in self.entries])
 
     def bind(self, sim: Simulator) -> None:
         """Resolve names against the compiled model, check the ranges against the nominal values, draw startup."""
         self.sim = sim
         m = sim.mj_model
         written: dict[tuple[str, int | None, int], str] = {}
-        for spec, quantity, patterns, selector in self.entries:
+        for spec, quantity, patterns, selector, actor in self.entries:
             index = element_ids(m, quantity.prop, selector, patterns, spec.key, self.device)
+            if actor is not None:
+                index = self._actor_index(m, quantity, index, actor, spec.key)
             param = Param(spec, quantity, index, nominal=torch.empty(0),
                           draw_of=self._shared_draws(m, quantity, index))
+            if spec.buckets:
+                param.bucket_values = self.sample(spec, (spec.buckets,))
             for write in quantity.prop.writes:
                 view = write_view(sim, write, quantity.prop.torque_speed, spec.key)
                 for i in index.tolist():
@@ -318,6 +391,17 @@ class Randomizer:
                         if any(p.quantity.prop.changes_inertia for p in self.params) else None)
         everyone = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
         self._draw_params(everyone, "startup")
+
+    def _actor_index(self, m, quantity: Quantity, index: torch.Tensor, actor: str, key: str) -> torch.Tensor:
+        """The part of ``index`` that belongs to ``actor``: an env.assets name, or MAIN_ACTOR for env.asset."""
+        prefixes = {name: view.prefix for name, view in self.sim.assets.items()}
+        if actor not in prefixes and actor != MAIN_ACTOR:
+            raise ConfigError(f"{key}: '{actor}' is no actor of this scene; actors: "
+                              f"{[MAIN_ACTOR + ' (env.asset)', *prefixes]}")
+        owned = actor_elements(m, quantity.prop, index, prefixes.get(actor), list(prefixes.values()))
+        if owned.numel() == 0:
+            raise ConfigError(f"{key}: actor '{actor}' has no {quantity.selects} among those selected")
+        return owned
 
     def _shared_draws(self, m, quantity: Quantity, index: torch.Tensor) -> torch.Tensor | None:
         """The ground of a terrain is many geoms (sim/builder.py) but one surface: its parts take one draw."""
@@ -370,7 +454,10 @@ class Randomizer:
         k = p.index.numel() if p.draw_of is None else int(p.draw_of.max()) + 1
         shape = (self.num_envs, k, q.axes) if q.axes else (self.num_envs, k, 1) if q.broadcast else \
             (self.num_envs, k)
-        draws = self.sample(p.spec, shape)
+        if p.bucket_values is not None:
+            draws = p.bucket_values[torch.randint(0, p.spec.buckets, shape, device=self.device)]
+        else:
+            draws = self.sample(p.spec, shape)
         value = self.combine(p.spec, p.nominal, draws if p.draw_of is None else draws[:, p.draw_of])
         if q.minimum is not None:
             value = torch.clamp(value, min=q.minimum)
@@ -396,13 +483,21 @@ class Randomizer:
             raise ConfigError(f"{self.root}.observations.terms: noise of {bad} must be >= 0")
         layout = ObsLayout([replace(t, noise=t.noise + float(terms.get(t.name, 0.0)) * abs(t.scale))
                             for t in layout.terms])
+        if self.obs_corr is not None:
+            self.correlated["observations"] = self.sample(self.obs_corr, (self.num_envs, layout.size))
         scale = layout.noise_scale(self.device)
         self.term_noise = scale if bool((scale != 0).any()) else None
         return layout
 
     def on_reset(self, mask: torch.Tensor) -> None:
-        """Draw the reset-time quantities of the resetting worlds and clear their action history."""
-        self._draw_params(mask, "reset")
+        """Draw the reset-time quantities of the resetting worlds (those whose last draw is ``frequency`` env steps
+        old) and clear their action history."""
+        if self.frequency > 1:
+            due = mask & (self.since_draw >= self.frequency)
+            self.since_draw.masked_fill_(due, 0)
+            self._draw_params(due, "reset")
+        else:
+            self._draw_params(mask, "reset")
         if self.max_delay:
             self.action_history.masked_fill_(mask.view(1, -1, 1), 0.0)
             if self.delay_spec is not None and self.delay_spec.apply == "reset":
@@ -433,7 +528,8 @@ class Randomizer:
             slot = (self.history_head - self.delay).remainder(self.max_delay + 1)
             actions = self.action_history.gather(0, slot.view(1, -1, 1).expand(1, *actions.shape)).squeeze(0)
         if self.action_noise is not None:
-            actions = self.combine(self.action_noise, actions, self.sample(self.action_noise, actions.shape))
+            actions = self.combine(self.action_noise, actions, self._noise("actions", self.action_noise,
+                                                                           self.action_corr, actions.shape))
         return actions
 
     def observations(self, obs: torch.Tensor) -> None:
@@ -441,10 +537,25 @@ class Randomizer:
         if self.term_noise is not None:
             obs += (2.0 * torch.rand_like(obs) - 1.0) * self.term_noise
         if self.obs_noise is not None:
-            obs.copy_(self.combine(self.obs_noise, obs, self.sample(self.obs_noise, obs.shape)))
+            obs.copy_(self.combine(self.obs_noise, obs, self._noise("observations", self.obs_noise, self.obs_corr,
+                                                                    obs.shape)))
+
+    def _noise(self, name: str, spec: Spec, corr: Spec | None, shape: torch.Size) -> torch.Tensor:
+        """This step's draws of ``spec``, plus the correlated offsets of ``corr``: drawn once, then anew every
+        ``frequency`` env steps (masked, no host sync)."""
+        x = self.sample(spec, shape)
+        if corr is None:
+            return x
+        if name not in self.correlated or self.correlated[name].shape != shape:  # else at the first (eager) step
+            self.correlated[name] = self.sample(corr, shape)
+        offsets = self.correlated[name]
+        due = torch.remainder(self.step_count, self.frequency) == 0
+        offsets.copy_(torch.where(due, self.sample(corr, shape), offsets))
+        return x + offsets
 
     def count_step(self) -> None:
         self.step_count.add_(1.0)  # in place: the reward curriculum holds this tensor (a compiled += would rebind it)
+        self.since_draw.add_(1)
 
     # ---------------------------------------------------------------- delay
     def setup_delay(self, nominal: int, num_actions: int) -> None:
@@ -452,6 +563,8 @@ class Randomizer:
         if nominal < 0:
             raise ConfigError(f"env.control.actionDelay={nominal} is invalid: give a whole number of policy steps >= 0")
         self.nominal_delay = int(nominal)
+        if self.action_corr is not None:
+            self.correlated["actions"] = self.sample(self.action_corr, (self.num_envs, num_actions))
         self.max_delay = self.nominal_delay + (int(self.delay_spec.hi) if self.delay_spec is not None else 0)
         self.delay = torch.full((self.num_envs,), self.nominal_delay, dtype=torch.long, device=self.device)
         if self.max_delay:

@@ -380,6 +380,16 @@ class VecTask:
         # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
         self.randomizer.step_count.fill_(env_frames // self.num_envs)
 
+    @property
+    def env_steps(self) -> torch.Tensor:
+        """The run's env steps so far over this process's envs, a () int64 tensor on the sim device: num_envs per
+        step, as IsaacGymEnvs' frame count (``set_train_info(env_frames)``) counts. Reward schedules and periodic events
+        read it in the step (device work, so it keeps counting in a captured step, where a Python counter would
+        freeze). A run from a checkpoint starts at the checkpoint's (resumed or in test mode). Read it each step: it
+        is computed from the one counter the randomisation schedules and the penalty curriculum also read (steps
+        per env, ``env_steps // num_envs``)."""
+        return self.randomizer.step_count.long() * self.num_envs
+
     def get_env_state(self) -> None:  # IsaacGymEnvs' checkpoint hooks: nothing beyond the policy to save
         return None
 
