@@ -31,6 +31,7 @@ from isaacgymenvs_mw.learning.train_config import check_train_config
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP, RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.files import DiskWriteError, atomic_save
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401  (StopRequested: imported from here too)
 
 # An action whose noise std is below this while the KL-adaptive rate sits at its floor has collapsed: moving its mean
@@ -158,9 +159,10 @@ class Runner(OnPolicyRunner):
                     break
                 if self.is_main and self.log_dir and (it + 1) % self.cfg["save_interval"] == 0:
                     self._save(os.path.join(self.log_dir, f"model_{it + 1}.pt"))
-        except BaseException:
-            # An interrupted run keeps what it learned so far.
-            if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
+        except BaseException as err:
+            # An interrupted run keeps what it learned so far (unless the disk it would go to refused a write).
+            if (self.is_main and self.log_dir and self.current_learning_iteration > start_it
+                    and not isinstance(err, DiskWriteError)):
                 path = os.path.join(self.log_dir, f"model_{self.current_learning_iteration}_interrupted.pt")
                 self._save(path)
                 self.interrupted_checkpoint = path
@@ -186,7 +188,12 @@ class Runner(OnPolicyRunner):
         return spent
 
     def _save(self, path: str) -> None:
-        self.save(path)
+        # rsl-rl-lib's save(), written whole or not at all (a full disk leaves no truncated model_*.pt); the upload
+        # (W&B) then sends the finished file.
+        state = {**self.alg.save(), "iter": self.current_learning_iteration,
+                 "infos": {"env_steps": self.total_env_steps}}  # a resumed run's env-step count goes on from here
+        atomic_save(path, lambda partial: torch.save(state, partial))
+        self.logger.save_model(path, self.current_learning_iteration)
         self.last_checkpoint = path
         if self.best is not None:
             self.best.consider(self.history, path)
@@ -380,7 +387,7 @@ class BestCheckpoint:
             return
         value = smoothed(values)[-1]  # the sweep's trailing mean, as its "best" column reads it
         if self.value is None or value > self.value:
-            shutil.copyfile(checkpoint, self.path)
+            atomic_save(self.path, lambda partial: shutil.copyfile(checkpoint, partial))
             self.value, self.iteration, self.source = value, int(history[-1]["iteration"]), checkpoint
 
     def summary(self) -> dict | None:
@@ -518,6 +525,5 @@ def evaluate(task, policy, device: str) -> dict:
 def write_json(path: Path, data: dict) -> None:
     """Write ``data`` as JSON whole or not at all: a reader, or a process writing the same file, never sees half."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    partial.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
-    os.replace(partial, path)
+    text = json.dumps(data, indent=2, sort_keys=False) + "\n"
+    atomic_save(path, lambda partial: Path(partial).write_text(text))
