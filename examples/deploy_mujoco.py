@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NoReturn
 
 import mujoco
 import numpy as np
@@ -56,7 +57,9 @@ class Deployment:
         meta = self.meta
         for key in ("joint_names", "default_joint_pos", "action_scale", "commands_scale"):
             if key not in meta:
-                raise ValueError(f"{export_dir / 'policy.json'} has no '{key}': not a legged task's export")
+                raise ValueError(f"export_dir='{export_dir}' holds {meta.get('task', 'an unnamed task')}'s policy, "
+                                 f"whose policy.json has no '{key}': this example deploys the legged robots' "
+                                 "policies (Anymal, Go1, G1 and their terrain tasks)")
         self.model = model or mujoco.MjModel.from_binary_path(str(export_dir / meta["files"]["mujoco_model"]))
         if not trained_solver:
             converge_solver(self.model)
@@ -199,8 +202,20 @@ def main() -> None:
     parser.add_argument("--trained-solver", action="store_true",
                         help="keep the exported solver iteration limits (MuJoCo C then stops short of convergence)")
     args = parser.parse_args()
-    result = run(args.export_dir, tuple(args.command), args.seconds, args.settle, args.trained_solver)
+    if not (args.export_dir / "policy.json").is_file():
+        fail(f"export_dir='{args.export_dir}' has no policy.json: give the exported/ folder that test mode "
+             "(train.py test=True) writes next to the checkpoint")
+    try:
+        result = run(args.export_dir, tuple(args.command), args.seconds, args.settle, args.trained_solver)
+    except ValueError as err:  # an export this example cannot run: what and why, as one line
+        fail(str(err))
     print(json.dumps(result), flush=True)
+
+
+def fail(message: str) -> NoReturn:
+    """End with one line on stderr and exit status 2, as train.py does for bad input."""
+    print(f"[deploy] error: {message}", file=sys.stderr, flush=True)
+    sys.exit(2)
 
 
 if __name__ == "__main__":

@@ -20,10 +20,6 @@ warp.config.quiet = True
 if hasattr(warp, "LOG_WARNING"):
     warp.config.log_level = warp.LOG_WARNING
 
-# MuJoCo reads MUJOCO_GL once, on its first import, and some test modules import mujoco directly: importing the
-# sim layer first lets it choose the headless GL backend (osmesa on CPU machines) that test_video.py renders with.
-import isaacgymenvs_mw.sim  # noqa: E402,F401
-
 TESTS_DIR = Path(__file__).resolve().parent
 REPO_ROOT = TESTS_DIR.parent
 if str(TESTS_DIR) not in sys.path:  # helper modules (cartpole_reference, _user_task_module) live next to the tests

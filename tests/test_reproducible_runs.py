@@ -29,6 +29,7 @@ from conftest import CPU_ARGS, REPO_ROOT
 from isaacgymenvs_mw.learning import loggers
 from isaacgymenvs_mw.learning.launch import build_task, run
 from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
 
 TIMING_KEYS = {"time_s", "steps_per_s", "collect_s", "learn_s"}
 ITERATIONS = 3
@@ -150,7 +151,7 @@ def test_unknown_logger_lists_valid_values(tmp_path, run_args):
 
 def test_wandb_without_the_package_names_the_key(tmp_path, run_args, monkeypatch):
     monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb fails, as when it is not installed
-    with pytest.raises(ModuleNotFoundError, match=r"train\.runner\.logger=wandb needs the wandb package"):
+    with pytest.raises(ConfigError, match=r"train\.runner\.logger=wandb needs the wandb package"):
         run(compose_config(["task=Cartpole", "num_envs=2", "train.runner.logger=wandb", *run_args]))
     assert not (tmp_path / "runs").exists()
 

@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 import pytest
+import torch
 
 from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
 from isaacgymenvs_mw.learning.sweep import (SMOOTHING, evaluation_outputs, expand, last_checkpoint, markdown_table,
@@ -52,7 +53,8 @@ def test_test_mode_names_its_outputs_after_the_checkpoint_unless_it_is_the_runs_
     run_dir = tmp_path / "Cartpole" / "stamp"
     run_dir.mkdir(parents=True)
     for name in ("model_9.pt", "model_10.pt", "model_12_interrupted.pt", "model_best.pt"):
-        (run_dir / name).touch()
+        torch.save({"iter": 0}, run_dir / name)  # whole files: only their names matter here
+    (run_dir / "model_13.pt").touch()  # empty, as a full disk left one before writes were atomic: never the latest
 
     def names(checkpoint: str) -> list[str]:
         return [p.name for p in evaluation_outputs(run_dir / checkpoint)]

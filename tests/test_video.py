@@ -39,35 +39,35 @@ def drawn(frame: np.ndarray) -> bool:
 
 
 def test_mujoco_gl_choice(monkeypatch):
-    from isaacgymenvs_mw import sim
+    from isaacgymenvs_mw.sim import video
 
-    monkeypatch.setattr(sim._sys, "platform", "linux")
+    monkeypatch.setattr(video.sys, "platform", "linux")
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     monkeypatch.setenv("MUJOCO_GL", "glfw")
-    sim._choose_mujoco_gl()
+    video.choose_gl_backend()
     assert os.environ["MUJOCO_GL"] == "glfw"  # the user's choice is kept
 
     monkeypatch.delenv("MUJOCO_GL")
     monkeypatch.setenv("DISPLAY", ":0")
-    sim._choose_mujoco_gl()
+    video.choose_gl_backend()
     assert "MUJOCO_GL" not in os.environ  # a display: MuJoCo's default (GLFW) is right
 
     monkeypatch.delenv("DISPLAY")
-    monkeypatch.setattr(sim._os.path, "exists", lambda p: p == "/dev/nvidia0")
+    monkeypatch.setattr(video.os.path, "exists", lambda p: p == "/dev/nvidia0")
     monkeypatch.setattr("ctypes.util.find_library", lambda name: f"lib{name}.so.1")
-    sim._choose_mujoco_gl()
+    video.choose_gl_backend()
     assert os.environ["MUJOCO_GL"] == "egl"
 
     monkeypatch.delenv("MUJOCO_GL")
-    monkeypatch.setattr(sim._os.path, "exists", lambda p: False)
-    sim._choose_mujoco_gl()
+    monkeypatch.setattr(video.os.path, "exists", lambda p: False)
+    video.choose_gl_backend()
     assert os.environ["MUJOCO_GL"] == "osmesa"
 
     monkeypatch.delenv("MUJOCO_GL")
     monkeypatch.setattr("ctypes.util.find_library", lambda name: None)
-    sim._choose_mujoco_gl()
-    assert "MUJOCO_GL" not in os.environ  # no library: left alone, so that `import mujoco` still works
+    video.choose_gl_backend()
+    assert "MUJOCO_GL" not in os.environ  # no library: left alone (the probe then says what to install)
 
 
 def test_cartpole_clips_frames_and_rate(tmp_path):
@@ -267,6 +267,24 @@ def test_unusable_gl_backend_gives_the_same_clear_error_twice_and_no_abort(tmp_p
     (line,) = [ln for ln in proc.stdout.splitlines() if ln.startswith("GL-ERROR:")]
     assert "MUJOCO_GL='glfw'" in line and "libosmesa6" in line and "MUJOCO_GL=egl" in line
     assert not (tmp_path / "videos").exists()
+
+
+def test_training_goes_on_without_video_when_no_gl_backend_starts(tmp_path):
+    # capture_video=True where no backend can start (GLFW without a display): one [video] line, then the run trains
+    # and writes its checkpoint and summary as without video, and exits 0.
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env.update(MUJOCO_GL="glfw", OMP_NUM_THREADS="1")
+    cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=1",
+           "sim_device=cpu", "rl_device=cpu", "headless=True", "capture_video=True", f"runs_dir={tmp_path}"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    assert "Traceback" not in out
+    (line,) = [ln for ln in out.splitlines() if ln.startswith("[video]")]
+    assert "MUJOCO_GL='glfw'" in line and line.endswith("the run goes on without it")
+    (run_dir,) = (tmp_path / "Cartpole").iterdir()
+    assert (run_dir / "model_1.pt").is_file() and (run_dir / "summary.json").is_file()
+    assert not (run_dir / "videos").exists()
 
 
 def test_mocap_goal_marker_is_filmed_where_the_task_puts_it(tmp_path):

@@ -185,7 +185,8 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
         return original_learn(self, *args, **kwargs)
 
     monkeypatch.setattr(Runner, "learn", spy_learn)
-    second = run(compose_config(cartpole_args(runs, "max_iterations=2", f"checkpoint={ckpt3}")))
+    # max_iterations on resume is the total, as in IsaacGymEnvs: from iteration 3 to 5 is 2 more
+    second = run(compose_config(cartpole_args(runs, "max_iterations=5", f"checkpoint={ckpt3}")))
     second_dir = Path(second["run_dir"])
 
     assert run_dirs(runs) == {first_dir, second_dir} and second_dir != first_dir
@@ -200,8 +201,11 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
     assert (second_dir / "model_5.pt").is_file() and not (second_dir / "model_3.pt").exists()
     summary = json.loads((second_dir / "summary.json").read_text())
     assert summary["final_iteration"] == 5 and summary["iterations"] == 2
-    assert summary["env_steps"] == 2 * steps * N
-    assert [h["iteration"] for h in summary["history"]] == [4, 5]
+    # The env-step count goes on from the checkpoint's (recorded in it), as the iterations do.
+    assert state3["infos"]["env_steps"] == 3 * steps * N
+    assert summary["env_steps"] == 5 * steps * N
+    assert [(h["iteration"], h["env_steps"]) for h in summary["history"]] == [(4, 4 * steps * N), (5, 5 * steps * N)]
+    assert summary["env_steps_per_s"] == pytest.approx(2 * steps * N / summary["train_time_s"])  # this run's steps
     saved_cfg = (second_dir / "config.yaml").read_text()
     assert str(ckpt3) in saved_cfg
 
@@ -215,7 +219,7 @@ def test_resume_continues_from_checkpoint_in_a_new_run_dir(tmp_path, monkeypatch
             assert torch.equal(at_start[part][key], value), (part, key)
 
     state5 = load_ckpt(second_dir / "model_5.pt")
-    assert state3["iter"] == 3 and state5["iter"] == 5
+    assert state3["iter"] == 3 and state5["iter"] == 5 and state5["infos"]["env_steps"] == 5 * steps * N
     # It went on from there rather than restarting: the normaliser kept counting, the optimiser kept stepping.
     count3, count5 = (int(s["actor_state_dict"]["obs_normalizer.count"]) for s in (state3, state5))
     assert count3 == 3 * steps * N and count5 == 5 * steps * N
@@ -444,7 +448,7 @@ def test_checkpoint_of_another_task_names_both_sizes(trained_cartpole, tmp_path,
     ckpt.parent.mkdir()
     shutil.copy(trained_cartpole, ckpt)
     args = ["task=Pendulum", "task_module=examples.pendulum_task", "num_envs=4", *CPU_ARGS,
-            f"runs_dir={tmp_path / 'runs'}", f"checkpoint={ckpt}", f"test={test_mode}", "max_iterations=1"]
+            f"runs_dir={tmp_path / 'runs'}", f"checkpoint={ckpt}", f"test={test_mode}", "max_iterations=3"]
     with pytest.raises(ValueError) as err:
         run(compose_config(args))
     msg = str(err.value)

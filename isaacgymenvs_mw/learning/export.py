@@ -24,6 +24,7 @@ from rsl_rl.runners import OnPolicyRunner
 
 from isaacgymenvs_mw._version import __version__
 from isaacgymenvs_mw.learning.runner import package_versions
+from isaacgymenvs_mw.utils.files import disk_errors_named
 
 METADATA_FILE = "metadata.json"  # name of the TorchScript extra file
 
@@ -50,14 +51,15 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Pat
     whole, also while another process exports into it.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
-        _write_policy_files(runner, staging, task)
-        for written in sorted(staging.iterdir()):
-            os.replace(written, out_dir / written.name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    with disk_errors_named(out_dir / "policy.onnx"):  # a full disk: one line naming the folder, no traceback
+        out_dir.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+        try:
+            _write_policy_files(runner, staging, task)
+            for written in sorted(staging.iterdir()):
+                os.replace(written, out_dir / written.name)
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
     return out_dir / "policy.onnx", out_dir / "policy.pt"
 
 

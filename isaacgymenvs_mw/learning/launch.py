@@ -33,6 +33,7 @@ from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported
 from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, checkpoint_path, time_budget, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
 from isaacgymenvs_mw.utils.errors import ConfigError, one_line
+from isaacgymenvs_mw.utils.files import atomic_save
 from isaacgymenvs_mw.utils.seeding import set_seed
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 
@@ -54,9 +55,12 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         train_cfg = rsl_rl_config(to_dict(cfg.train))
         if not cfg.test:
             check_logger(train_cfg)
+        max_iterations = int(train_cfg.pop("max_iterations"))
     checkpoint, saved = _read_checkpoint(cfg, learner="rl_games" if rl_games else "rsl_rl")
     if not cfg.test and rank == 0:
         check_runs_dir(cfg.runs_dir)
+    if not rl_games and not cfg.test and saved is not None:
+        check_resume_total(max_iterations, saved, cfg.checkpoint)
 
     task = _build_with_notice(cfg)
     if rl_games:  # deferred: rl_games is an optional extra, imported only by its runs
@@ -68,6 +72,8 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         if max_iterations < 0:
             raise ConfigError(f"train.params.config.max_epochs={max_iterations} is invalid: give the iterations to "
                               "train (or max_iterations=N on the command line)")
+        if not cfg.test and saved is not None:
+            check_resume_total(max_iterations, {"iter": saved.get("iteration", saved.get("epoch", 0))}, cfg.checkpoint)
         env = RlGamesVecEnv(task)
 
         def make_runner():
@@ -75,7 +81,6 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     else:
         env = RslRlVecEnv(task)
         experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
-        max_iterations = int(train_cfg.pop("max_iterations"))
 
         def make_runner():
             return Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
@@ -106,17 +111,19 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     runner = make_runner()
     if checkpoint is not None:
         load_checkpoint(runner, checkpoint, task, saved)
-        print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration}", flush=True)
+        print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration} and "
+              f"{runner.total_env_steps:,} env steps: training to iteration {max_iterations} (max_iterations counts "
+              "the total, as in IsaacGymEnvs)", flush=True)
     if is_main:
         run_dir = _new_run_dir(run_dir)
-        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+        atomic_save(run_dir / "config.yaml", lambda partial: OmegaConf.save(cfg, partial, resolve=True))
         runner.log_dir = str(run_dir)
         runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
         if cfg.get("save_best", False):
             runner.best = BestCheckpoint(run_dir, str(cfg.get("sweep_metric", "auto")), training_metric_keys(task))
         if videos:
             _attach_video_recorder(cfg, task, run_dir / "videos")
-    start_it = runner.current_learning_iteration
+    start_it, start_steps = runner.current_learning_iteration, runner.total_env_steps
     interrupted: KeyboardInterrupt | None = None
     # From here on a signal only asks the run to stop, and the summary is always written: a signal that comes while
     # it is written is recorded, not raised.
@@ -127,10 +134,11 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
               flush=True)
         try:
             random_start = False if rl_games else bool(cfg.train.runner.get("init_at_random_ep_len", False))
-            runner.learn(max_iterations, init_at_random_ep_len=random_start, max_train_time_s=budget)
+            # max_iterations is the total: a resumed run trains the rest
+            runner.learn(max_iterations - start_it, init_at_random_ep_len=random_start, max_train_time_s=budget)
         except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): Runner.learn has saved the model
             interrupted = err
-        summary = _summary(cfg, task, runner, seed, start_it, started_at, run_dir, interrupted)
+        summary = _summary(cfg, task, runner, seed, (start_it, start_steps), started_at, run_dir, interrupted)
         if is_main:
             _report_end(summary, runner, run_dir, interrupted)
         task.close()
@@ -141,9 +149,11 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     return summary
 
 
-def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start_it: int, started_at: float, run_dir: Path,
-             interrupted: KeyboardInterrupt | None) -> dict:
-    """What summary.json holds: the run's final metrics, throughput, learner health, device and versions."""
+def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start: tuple[int, int], started_at: float,
+             run_dir: Path, interrupted: KeyboardInterrupt | None) -> dict:
+    """What summary.json holds: the run's final metrics, throughput, learner health, device and versions. ``start``:
+    the iteration and env steps it began at (a checkpoint's, when resumed; its env steps count on from there)."""
+    start_it, start_steps = start
     wall = time.perf_counter() - started_at
     means = runner.recent_means()
     return {
@@ -156,7 +166,7 @@ def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start_it: in
         "env_steps": runner.total_env_steps,
         "wall_time_s": wall,
         "train_time_s": runner.train_time,
-        "env_steps_per_s": runner.total_env_steps / max(runner.train_time, 1e-9),
+        "env_steps_per_s": (runner.total_env_steps - start_steps) / max(runner.train_time, 1e-9),
         "mean_episode_reward": means.get("mean_episode_reward"),
         "mean_episode_length": means.get("mean_episode_length"),
         "timeout_fraction": means.get("timeout_fraction"),
@@ -245,15 +255,20 @@ def _leave_process_group(runner: TrainingRun) -> None:
 
 def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
     """capture_video=True: film env 0 in real time, capture_video_len env steps every capture_video_freq."""
-    from isaacgymenvs_mw.sim.video import VideoRecorder  # deferred: only recording runs need a GL context
+    from isaacgymenvs_mw.sim.video import GLBackendError, VideoRecorder  # deferred: only recording needs GL
 
     every, length = int(cfg.get("capture_video_freq", 1464)), int(cfg.get("capture_video_len", 100))
     # A task that observes camera images: what the policy sees (env 0's latest frame) beside the view.
     observations = task.observations
     beside = None if observations.images is None else (
         lambda: observations.camera_picture(task.control_steps).cpu().numpy())
-    task.display.record(VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
-                                      beside=beside))
+    try:
+        recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
+                                 beside=beside)
+    except GLBackendError as err:  # only the video is lost: the run goes on, as the README promises
+        print(f"[video] no video: {err}; the run goes on without it", flush=True)
+        return
+    task.display.record(recorder)
     print(f"[video] env 0: {length} steps every {every} env steps -> {out_dir}/video_<step>.mp4", flush=True)
 
 
@@ -292,6 +307,42 @@ def _read_checkpoint(cfg: DictConfig, learner: str = "rsl_rl") -> tuple[Path | N
     return path, state
 
 
+def _mlp_widths(weights: dict) -> list[int]:
+    """The hidden layer widths of an MLP from its state dict (mlp.<layer>.weight, in layer order)."""
+    layers = sorted((int(k.split(".")[1]), v.shape[0]) for k, v in weights.items()
+                    if k.startswith("mlp.") and k.endswith(".weight") and k.split(".")[1].isdigit())
+    return [width for _, width in layers[:-1]]
+
+
+def check_network_sizes(runner: Runner, state: dict, checkpoint: Path) -> None:
+    """The checkpoint's networks have the layer sizes the train config builds; else name the first layer that
+    differs and the config key that sets it (rsl-rl-lib would stop with a page of 'size mismatch' lines)."""
+    built = runner.alg.save()
+    for part in ("actor", "critic"):
+        mine, saved = built.get(f"{part}_state_dict", {}), state.get(f"{part}_state_dict", {})
+        for name, tensor in saved.items():
+            if name not in mine or tuple(mine[name].shape) == tuple(tensor.shape):
+                continue
+            shapes = f"{tuple(tensor.shape)} in the checkpoint, {tuple(mine[name].shape)} as configured"
+            if name.startswith("mlp."):
+                key = f"train.{part}.hidden_dims"
+                hint = f"give {key}={_mlp_widths(saved)} (the checkpoint's), not {_mlp_widths(mine)}"
+            else:
+                key, hint = f"train.{part}", f"give the train.{part} settings it was trained with"
+            raise ConfigError(f"checkpoint='{checkpoint}' does not fit {key}: its {part} layer {name} is {shapes}; "
+                              f"{hint}")
+
+
+def check_resume_total(max_iterations: int, saved: dict, given: str) -> None:
+    """Resuming trains up to ``max_iterations`` in total (IsaacGymEnvs' meaning): it must lie beyond the checkpoint's
+    iteration."""
+    done = int(saved.get("iter", 0) or 0)
+    if max_iterations <= done:
+        raise ConfigError(f"max_iterations={max_iterations} is not above the iteration of checkpoint='{given}' "
+                          f"({done}): on resume max_iterations is the total, so give max_iterations > {done} "
+                          f"(e.g. {2 * max(done, 1)})")
+
+
 def load_checkpoint(runner: TrainingRun, checkpoint: Path, task, state: dict | None = None) -> None:
     """Load a checkpoint after checking that its policy fits this task's observation and action sizes; ``state``:
     the file's contents when the caller has read them already (only their shapes are used here)."""
@@ -312,8 +363,13 @@ def load_checkpoint(runner: TrainingRun, checkpoint: Path, task, state: dict | N
                 f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
                 f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"
             )
-    runner.load(str(checkpoint), map_location=task.rl_device)
+    check_network_sizes(runner, state, checkpoint)
+    infos = runner.load(str(checkpoint), map_location=task.rl_device)
+    steps_per_iteration = int(runner.cfg["num_steps_per_env"]) * task.num_envs
+    # The run's env-step count goes on from the checkpoint's (saved since it was recorded; estimated before).
+    estimate = runner.current_learning_iteration * steps_per_iteration
+    runner.total_env_steps = int((infos or {}).get("env_steps", estimate))
     # Randomisation schedules and the penalty curriculum count env steps per env: a resumed run goes on from the
     # checkpoint's, and test mode evaluates under the conditions the policy had reached.
-    task.set_train_info(runner.current_learning_iteration * int(runner.cfg["num_steps_per_env"]) * task.num_envs)
+    task.set_train_info(runner.current_learning_iteration * steps_per_iteration)
 

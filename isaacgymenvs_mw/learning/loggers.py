@@ -46,8 +46,8 @@ def check_logger(cfg: dict) -> None:
     """Fail before anything is built when the logger is unknown or its package is not installed."""
     kind, _ = logger_kind(cfg)
     if kind == "wandb" and importlib.util.find_spec("wandb") is None:
-        raise ModuleNotFoundError(f"{KEY}=wandb needs the wandb package: pip install wandb "
-                                  f"(or set {KEY}=tensorboard)")
+        raise ConfigError(f"{KEY}=wandb needs the wandb package, which is not installed: pip install wandb "
+                          f"(or set {KEY}=tensorboard)")
 
 
 def make_writer(cfg: dict, log_dir: str, experiment: str, config: dict | None = None) -> SummaryWriter:
@@ -74,7 +74,8 @@ class WandbWriter(SummaryWriter, LogWriter):
         try:
             wandb = importlib.import_module("wandb")
         except ModuleNotFoundError:
-            raise ModuleNotFoundError(f"{KEY}=wandb needs the wandb package: pip install wandb") from None
+            raise ConfigError(f"{KEY}=wandb needs the wandb package, which is not installed: "
+                              "pip install wandb") from None
         super().__init__(log_dir, flush_secs=10)
         if not os.environ.get("WANDB_MODE") and not _reachable():
             os.environ["WANDB_MODE"] = "offline"

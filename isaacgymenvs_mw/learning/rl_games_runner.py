@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import io
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ from isaacgymenvs_mw.learning.vecenv import EpisodeStats, record_step
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.files import atomic_save
 
 def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
     """The checked ``train.params`` of the run, with what the run decides (envs, device, multi-GPU) put in."""
@@ -265,8 +265,8 @@ class RlGamesRunner(TrainingRun):
                 if self._reached_goal():
                     break
                 self._save_every(it + 1, self.save_frequency)
-        except BaseException:
-            self._save_interrupted(start_it)
+        except BaseException as err:
+            self._save_interrupted(start_it, err)
             raise
         else:
             self._save_last()
@@ -304,9 +304,7 @@ class RlGamesRunner(TrainingRun):
         state = self.agent.get_full_state_weights()
         state.update(learner=LEARNER, iteration=self.current_learning_iteration,
                      total_env_steps=self.total_env_steps)
-        partial = Path(path).with_name(f".{Path(path).name}.{os.getpid()}.partial")
-        torch.save(state, partial)
-        os.replace(partial, path)
+        atomic_save(path, lambda partial: torch.save(state, partial))
 
     def load(self, path: str, map_location: str | None = None, state: dict | None = None) -> None:
         if state is None:

@@ -37,6 +37,7 @@ from isaacgymenvs_mw.learning.training_run import (  # noqa: F401  (also importe
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
 from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.files import atomic_save
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401  (StopRequested: imported from here too)
 
 # An action whose noise std is below this while the KL-adaptive rate sits at its floor has collapsed: moving its mean
@@ -152,8 +153,8 @@ class Runner(OnPolicyRunner, TrainingRun):
                     self.time_budget_reached = True
                     break
                 self._save_every(it + 1, int(self.cfg["save_interval"]))
-        except BaseException:
-            self._save_interrupted(start_it)
+        except BaseException as err:
+            self._save_interrupted(start_it, err)
             raise
         else:  # saved while the writer is open, so that W&B uploads the final checkpoint too
             self._save_last()
@@ -163,6 +164,14 @@ class Runner(OnPolicyRunner, TrainingRun):
                 if isinstance(writer, LogWriter):
                     writer.stop()
                 self.logger.writer = None
+
+    def save(self, path: str, infos: dict | None = None) -> None:
+        """rsl-rl-lib's checkpoint, written whole or not at all (a full disk leaves no truncated model_*.pt), with the
+        run's env steps, from which a resumed run's count goes on; the upload (W&B) then sends the finished file."""
+        state = {**self.alg.save(), "iter": self.current_learning_iteration,
+                 "infos": {**(infos or {}), "env_steps": self.total_env_steps}}
+        atomic_save(path, lambda partial: torch.save(state, partial))
+        self.logger.save_model(path, self.current_learning_iteration)
 
     def _action_noise(self) -> dict[str, float]:
         """The policy's action noise as its parameters hold it after the update: the mean and the smallest standard
@@ -245,7 +254,7 @@ class BestCheckpoint:
         if checkpoint not in self.candidates[-1:]:  # the last iteration's may be saved twice (interval, end)
             self.candidates.append(checkpoint)
         if self.value is None or value > self.value:
-            shutil.copyfile(checkpoint, self.path)
+            atomic_save(self.path, lambda partial: shutil.copyfile(checkpoint, partial))
             self.value, self.iteration, self.source = value, int(history[-1]["iteration"]), checkpoint
 
     def never_moved(self) -> str | None:
@@ -341,6 +350,5 @@ def evaluate(task, policy, device: str) -> dict:
 def write_json(path: Path, data: dict) -> None:
     """Write ``data`` as JSON whole or not at all: a reader, or a process writing the same file, never sees half."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    partial.write_text(json.dumps(data, indent=2, sort_keys=False) + "\n")
-    os.replace(partial, path)
+    text = json.dumps(data, indent=2, sort_keys=False) + "\n"
+    atomic_save(path, lambda partial: Path(partial).write_text(text))

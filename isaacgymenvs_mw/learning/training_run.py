@@ -18,6 +18,7 @@ import torch
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP
+from isaacgymenvs_mw.utils.files import DiskWriteError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested
 
 
@@ -74,9 +75,11 @@ class TrainingRun:
         if self.is_main and self.log_dir and interval > 0 and iteration % interval == 0:
             self._save(os.path.join(self.log_dir, f"model_{iteration}.pt"))
 
-    def _save_interrupted(self, start_it: int) -> None:
-        """An interrupted run keeps what it learned so far: ``model_<it>_interrupted.pt`` once an iteration ended."""
-        if self.is_main and self.log_dir and self.current_learning_iteration > start_it:
+    def _save_interrupted(self, start_it: int, err: BaseException) -> None:
+        """An interrupted run keeps what it learned so far: ``model_<it>_interrupted.pt`` once an iteration ended
+        (unless ``err`` is the disk it would go to refusing a write)."""
+        if (self.is_main and self.log_dir and self.current_learning_iteration > start_it
+                and not isinstance(err, DiskWriteError)):
             path = os.path.join(self.log_dir, f"model_{self.current_learning_iteration}_interrupted.pt")
             self._save(path)
             self.interrupted_checkpoint = path

@@ -1,33 +1,11 @@
 """The simulator layer: the only package that imports mujoco / mujoco_warp."""
 
-import os as _os
-import sys as _sys
-
-
-def _choose_mujoco_gl() -> None:
-    """Pick MuJoCo's headless OpenGL backend before mujoco is first imported (it reads MUJOCO_GL on import).
-
-    Only on Linux without a display, and never over a MUJOCO_GL the user set: EGL where an NVIDIA GPU is visible,
-    OSMesa otherwise. A backend whose library is missing is not chosen: mujoco's import would then fail outright,
-    and only video recording needs one (sim/video.py says what to install).
-    """
-    if _os.environ.get("MUJOCO_GL") or not _sys.platform.startswith("linux"):
-        return
-    if _os.environ.get("DISPLAY") or _os.environ.get("WAYLAND_DISPLAY"):
-        return
-    from ctypes.util import find_library
-
-    if _os.path.exists("/dev/nvidia0") and find_library("EGL"):
-        _os.environ["MUJOCO_GL"] = "egl"
-    elif find_library("OSMesa"):
-        _os.environ["MUJOCO_GL"] = "osmesa"
-
-
-_choose_mujoco_gl()
-
+# No OpenGL backend is chosen here: importing the package (or make(), or the tests) loads no GL library. Only video
+# recording needs one, and sim/video.py chooses it when a recorder starts: OSMesa's LLVM, loaded at import, crashed
+# processes that later loaded a CUDA build of torch's Triton.
 from isaacgymenvs_mw.sim.gl import import_mujoco  # noqa: E402
 
-import_mujoco()  # a MUJOCO_GL whose library is missing: one line saying what to install, not PyOpenGL's traceback
+import_mujoco()  # a MUJOCO_GL you set whose library is missing: one line saying what to install, not a traceback
 
 from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     DRIVE_MODES,
@@ -45,10 +23,10 @@ from isaacgymenvs_mw.sim.builder import (  # noqa: E402
     match_joint_values,
     movable_joint_names,
 )
-from isaacgymenvs_mw.sim.kernels import set_verbose  # noqa: E402
-from isaacgymenvs_mw.sim.names import name_matches  # noqa: E402
-from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names  # noqa: E402
-from isaacgymenvs_mw.sim.request import (  # noqa: E402
+from isaacgymenvs_mw.sim.kernels import set_verbose
+from isaacgymenvs_mw.sim.names import name_matches
+from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names
+from isaacgymenvs_mw.sim.request import (
     SIM_KEYS,
     asset_path,
     check_sim_keys,
@@ -57,8 +35,8 @@ from isaacgymenvs_mw.sim.request import (  # noqa: E402
     solver_options,
     torque_speed_limits,
 )
-from isaacgymenvs_mw.sim.scene import AssetView  # noqa: E402
-from isaacgymenvs_mw.sim.sensors import (  # noqa: E402
+from isaacgymenvs_mw.sim.scene import AssetView
+from isaacgymenvs_mw.sim.sensors import (
     SENSOR_TYPES,
     ContactForces,
     HeightScan,
@@ -66,8 +44,8 @@ from isaacgymenvs_mw.sim.sensors import (  # noqa: E402
     SensorSpec,
     sensor_specs,
 )
-from isaacgymenvs_mw.sim.simulator import Simulator  # noqa: E402
-from isaacgymenvs_mw.sim.terrain import (  # noqa: E402
+from isaacgymenvs_mw.sim.simulator import Simulator
+from isaacgymenvs_mw.sim.terrain import (
     TERRAIN_TYPES,
     Terrain,
     TerrainConfig,

@@ -24,6 +24,7 @@ from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.cameras import Cameras, CameraView
 from isaacgymenvs_mw.sim.forces import FRAMES, BodyForces
 from isaacgymenvs_mw.sim.kernels import KernelLoad, init_warp
+from isaacgymenvs_mw.sim.memory import check_worlds_fit
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
 from isaacgymenvs_mw.sim.sensors import REFRESH_PHASES, Sensor, SensorViews
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -144,6 +145,7 @@ class Simulator:
 
         # The limit rewrites each world's force ranges from its own joint speeds: they are per world.
         per_world_fields = tuple(dict.fromkeys((*per_world_fields, *(("actuator_forcerange",) if torque_speed else ()))))
+        check_worlds_fit(mj_model, self.num_worlds, self.wp_device, nconmax, njmax)  # before the long allocations
         with wp.ScopedDevice(self.wp_device):
             fields = [f for f in per_world_fields if not f.startswith("opt.")]
             self.model = mjw.put_model(mj_model, batch_sizes={f: self.num_worlds for f in fields})

@@ -5,13 +5,17 @@ for each of those it copies the world's qpos/qvel from the device into a host ``
 runs ``mj_forward`` there, renders one frame and streams it to ffmpeg. Between clips ``capture`` only compares two
 Python integers, so a run that records rarely pays almost nothing for it.
 
-Headless rendering needs an OpenGL backend chosen before mujoco is first imported: ``isaacgymenvs_mw.sim`` sets
-``MUJOCO_GL`` (EGL on NVIDIA machines, OSMesa on CPU machines) when no display is present and the user set none.
+Headless rendering needs an OpenGL backend. MuJoCo picks one from ``MUJOCO_GL`` when it is first imported, and
+loading one is not free: OSMesa brings its own LLVM, which crashed processes that then loaded Triton (a CUDA build
+of torch on a CPU-only machine). So nothing is chosen at import; the first recorder chooses (``choose_gl_backend``:
+EGL on NVIDIA machines, OSMesa on others, only without a display and only where the user set no ``MUJOCO_GL``) and
+hands MuJoCo that backend's context class (``_install_gl_backend``).
 """
 
 from __future__ import annotations
 
 import copy
+import importlib
 import math
 import os
 import subprocess
@@ -56,8 +60,37 @@ def _gl_error_message(reason: str) -> str:
     return f"MuJoCo's offscreen renderer cannot start with {named}: {reason}. {gl_install_hint()}"
 
 
+def choose_gl_backend() -> None:
+    """Set ``MUJOCO_GL`` for offscreen rendering where the user set none: only on Linux without a display (a display
+    keeps MuJoCo's default, GLFW), EGL where an NVIDIA GPU is visible, OSMesa otherwise; a backend whose library is
+    missing is not chosen (the probe then says what to install)."""
+    if os.environ.get("MUJOCO_GL") or not sys.platform.startswith("linux"):
+        return
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return
+    from ctypes.util import find_library
+
+    if os.path.exists("/dev/nvidia0") and find_library("EGL"):
+        os.environ["MUJOCO_GL"] = "egl"
+    elif find_library("OSMesa"):
+        os.environ["MUJOCO_GL"] = "osmesa"
+
+
+def _install_gl_backend() -> None:
+    """Give MuJoCo the context class of the backend ``MUJOCO_GL`` names now, where mujoco was imported before it was
+    chosen (it keeps the class it picked then; mujoco==4.0.0's Renderer reads it from ``gl_context`` when made)."""
+    chosen = os.environ.get("MUJOCO_GL", "").lower().strip()
+    from mujoco.rendering.classic import gl_context
+
+    if chosen in ("egl", "osmesa") and getattr(gl_context, "_MUJOCO_GL", chosen) != chosen:
+        gl_context.GLContext = importlib.import_module(f"mujoco.{chosen}").GLContext
+        gl_context._MUJOCO_GL = chosen
+
+
 def gl_backend_error() -> str | None:
-    """Why MuJoCo's offscreen renderer cannot start here (None if it can). Probed once per process."""
+    """Why MuJoCo's offscreen renderer cannot start here (None if it can). Chooses the backend first; probed once per
+    process."""
+    choose_gl_backend()
     if "error" not in _gl_verdict:
         try:
             proc = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=120,
@@ -70,15 +103,20 @@ def gl_backend_error() -> str | None:
     return _gl_verdict["error"]
 
 
+class GLBackendError(RuntimeError):
+    """No OpenGL backend can start here; the message says what to install."""
+
+
 def _start_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
-    """A renderer, or the same clear RuntimeError on every attempt where no GL backend works."""
+    """A renderer, or the same clear GLBackendError on every attempt where no GL backend works."""
     error = gl_backend_error()
     if error is None:
         try:
+            _install_gl_backend()
             return mujoco.Renderer(model, height=height, width=width)
         except Exception as err:  # noqa: BLE001  (the probe passed, this process did not: remember it)
             _gl_verdict["error"] = error = _gl_error_message(f"{type(err).__name__}: {err}")
-    raise RuntimeError(error)
+    raise GLBackendError(error)
 
 
 class VideoRecorder:

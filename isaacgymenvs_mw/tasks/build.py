@@ -18,8 +18,22 @@ from isaacgymenvs_mw.sim import set_verbose
 from isaacgymenvs_mw.tasks import get_task_class
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import check_run_config, cpu_threads, to_dict
-from isaacgymenvs_mw.utils.device import check_device_pair, resolve_device
+from isaacgymenvs_mw.utils.device import check_device_pair, check_multi_gpu, resolve_device
 from isaacgymenvs_mw.utils.errors import ConfigError, under_task
+
+
+def import_task_module(name: str) -> None:
+    """``task_module=``: import the module that registers the user's tasks, or say in one line why it cannot be."""
+    try:
+        importlib.import_module(name)
+    except ModuleNotFoundError as err:
+        missing = err.name or name
+        if missing == name or name.startswith(f"{missing}."):  # the module itself (or its package) is not found
+            raise ConfigError(f"task_module={name!r}: no module {missing!r} on the Python path (the current folder "
+                              "and PYTHONPATH): run train.py from the folder that holds it, or add that folder to "
+                              "PYTHONPATH") from err
+        raise ConfigError(f"task_module={name!r} imports {missing!r}, which is not installed: pip install it (or "
+                          "fix the import)") from err
 
 
 def build_task(cfg: DictConfig) -> VecTask:
@@ -28,9 +42,10 @@ def build_task(cfg: DictConfig) -> VecTask:
     set_verbose(cfg.get("verbose", False))
     torch.set_num_threads(cpu_threads(cfg.get("cpu_threads", 1)))
     if cfg.get("task_module"):
-        importlib.import_module(cfg.task_module)
+        import_task_module(str(cfg.task_module))
     task_class = get_task_class(cfg.task_name)
     rank = int(os.getenv("LOCAL_RANK", "0"))
+    check_multi_gpu(bool(cfg.get("multi_gpu", False)), int(os.getenv("WORLD_SIZE", "1")), rank)
     if cfg.get("multi_gpu", False):
         sim_device = rl_device = f"cuda:{rank}"
     else:

@@ -6,6 +6,7 @@ import math
 import os
 import re
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -226,6 +227,7 @@ _RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "mu
                  "sweep_eval", "save_best")
 _RUN_WHOLE_NUMBERS = {"num_envs": 1, "max_iterations": 0, "seed": -1, "graphics_device_id": -1,
                       "capture_video_freq": 1, "capture_video_len": 1}
+MAX_WORLDS = 2**31 - 1  # Warp's array dimensions are signed 32-bit integers
 _RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device", "sweep_metric", "learner")
 _RUN_NONEMPTY = ("runs_dir", "sim_device", "rl_device", "sweep_metric")
 
@@ -236,6 +238,9 @@ def check_run_config(cfg: DictConfig) -> None:
         value = cfg.get(key, "")
         if not (value in ("", None) and key in ("num_envs", "max_iterations")):
             whole_number(value, key, minimum)
+    if cfg.get("num_envs") not in ("", None) and int(cfg.num_envs) > MAX_WORLDS:
+        raise ConfigError(f"num_envs={cfg.num_envs!r} is invalid: give a whole number from 1 to {MAX_WORLDS} "
+                          "(MuJoCo Warp counts worlds in 32-bit integers)")
     for key in _RUN_BOOLEANS:
         if key in cfg:
             boolean(cfg[key], key)
@@ -283,8 +288,11 @@ def checkpoint_iteration(name: str) -> int | None:
 
 
 def latest_checkpoint(paths: Iterable[Path]) -> Path | None:
-    """The checkpoint of the highest iteration among ``paths`` (by number: model_9 comes before model_10), or None."""
-    numbered = [(n, p) for p in paths if (n := checkpoint_iteration(p.name)) is not None]
+    """The checkpoint of the highest iteration among ``paths`` (by number: model_9 comes before model_10), or None.
+
+    Only whole files count: torch.save writes a zip archive, whose directory is its last part, so a file cut short
+    (a full disk, before writes became atomic) or left empty is never the one recommended."""
+    numbered = [(n, p) for p in paths if (n := checkpoint_iteration(p.name)) is not None and zipfile.is_zipfile(p)]
     return max(numbered)[1] if numbered else None
 
 
