@@ -492,12 +492,9 @@ class Randomizer:
     def on_reset(self, mask: torch.Tensor) -> None:
         """Draw the reset-time quantities of the resetting worlds (those whose last draw is ``frequency`` env steps
         old) and clear their action history."""
-        if self.frequency > 1:
-            due = mask & (self.since_draw >= self.frequency)
-            self.since_draw.masked_fill_(due, 0)
-            self._draw_params(due, "reset")
-        else:
-            self._draw_params(mask, "reset")
+        due = mask & (self.since_draw >= self.frequency) if self.frequency > 1 else mask
+        self.since_draw.masked_fill_(due, 0)  # IsaacGymEnvs' randomize_buf: zeroed where the draw happens
+        self._draw_params(due, "reset")
         if self.max_delay:
             self.action_history.masked_fill_(mask.view(1, -1, 1), 0.0)
             if self.delay_spec is not None and self.delay_spec.apply == "reset":

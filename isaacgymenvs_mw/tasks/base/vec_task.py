@@ -32,6 +32,7 @@ from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_requ
 from isaacgymenvs_mw.tasks.base.display import Display
 from isaacgymenvs_mw.tasks.base.env_keys import episode_length, joint_velocity_clamp, task_settings
 from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
+from isaacgymenvs_mw.tasks.base.ige_surface import IGESurface
 from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
 from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
@@ -42,8 +43,9 @@ from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases,
 from isaacgymenvs_mw.utils.device import resolve_device
 
 
-class VecTask:
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 24}
+class VecTask(IGESurface):
+    """IsaacGymEnvs' VecTask; IGESurface (tasks/base/ige_surface.py) gives its public names that read facts kept here."""
+
     # True: the episodes that end by ``check_success`` are counted as successes, the metrics SUCCESS_RATE (logged as
     # Episode/success, the rate over ended episodes) and SUCCESS (test mode's eval "success", each env's first episode).
     reports_success: bool = False
@@ -58,8 +60,9 @@ class VecTask:
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
-        # graphics_device_id, virtual_screen_capture, force_render: IsaacGymEnvs' signature, unused here
-        self.cfg = config
+        # IsaacGymEnvs' signature, kept as given: rendering runs on the sim device, videos come from capture_video
+        self.cfg, self.graphics_device_id = config, graphics_device_id
+        self.virtual_screen_capture, self.force_render = virtual_screen_capture, force_render
         check_required_hooks(type(self), VecTask)
         self.sim_device = resolve_device(sim_device, "sim_device")
         self.rl_device = resolve_device(rl_device, "rl_device")
@@ -70,7 +73,7 @@ class VecTask:
         self.control_freq_inv, self.render_interval = settings.control_freq_inv, settings.render_interval
         self.clip_obs, self.clip_actions = settings.clip_obs, settings.clip_actions
         self.overflow_check_interval = settings.overflow_check_interval
-        self.act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
+        self._act_space = gym.spaces.Box(-1.0, 1.0, shape=(self.num_actions,), dtype=np.float32)
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
         self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
@@ -134,52 +137,12 @@ class VecTask:
             action_shape=(n, self.num_actions), device=dev, load_kernels=self.sim.load_kernels, task=self,
         )
 
-    # -------------------------------------------------------------- properties
-    @property
-    def observation_space(self) -> gym.Space:
-        return self._built_observations().obs_space
-
-    @property
-    def action_space(self) -> gym.Space:
-        return self.act_space
-
-    @property
-    def num_envs(self) -> int:
-        return self.num_environments
-
-    @property
-    def num_acts(self) -> int:
-        return self.num_actions
-
-    @property
-    def num_obs(self) -> int:
-        return self._built_observations().num_obs
-
-    @property
-    def num_states(self) -> int:
-        return self.observations.num_states
-
-    @property
-    def obs_buf(self) -> torch.Tensor:
-        """(num_envs, numObservations): the policy observation the task's terms (or the task) write each step."""
-        return self.observations.obs_buf
-
-    @property
-    def states_buf(self) -> torch.Tensor:
-        """(num_envs, numStates): the critic's privileged state."""
-        return self.observations.states_buf
-
-    @property
-    def control_steps(self) -> int:
-        """Env steps taken (the step execution's count, the run's one clock)."""
-        return self.execution.steps
-
+    # ------------------------------------------------------------ observations
     def _built_observations(self) -> Observations:
         if not self.observations.built:  # a declared layout gives the sizes once the task's __init__ has run
             self.build_observation_layouts()
         return self.observations
 
-    # ------------------------------------------------------------ observations
     def observation_terms(self) -> list[ObsTerm] | None:
         """The policy observation as named terms (``ObsTerm(name, size, scale, noise, compute=...)``), in column
         order; ``compute_observations`` builds ``obs_buf`` from them and ``numObservations`` is their total. None:
