@@ -161,3 +161,19 @@ def test_the_test_mode_policy_is_rl_games_deterministic_action():
         mus = model({"is_train": False, "obs": obs.clone(), "prev_actions": None})["mus"]
     assert (mus.abs() > 1).any()
     assert torch.allclose(ours, mus.clamp(-1, 1), atol=1e-6)
+
+
+# reward_shaper.scale_value of IsaacGymEnvs' <Task>PPO.yaml (isaac-sim/IsaacGymEnvs isaacgymenvs/cfg/train): the factor
+# on IGE's reward that its rl_games learned from.
+IGE_REWARD_SCALE = {"AllegroHand": 0.01, "ShadowHand": 0.01, "Ant": 0.01, "Cartpole": 0.1, "FrankaCubeStack": 1.0}
+
+
+@pytest.mark.parametrize("task", sorted(IGE_REWARD_SCALE))
+def test_shipped_rl_games_recipes_scale_the_reward_once_as_isaacgymenvs(task):
+    """The learner's reward is the task's (x env.rewardScale, where the task has one) x reward_shaper.scale_value.
+    AllegroHand's recipe once applied IGE's 0.01 in both places (1e-4): the value targets sat ~20x below the
+    normaliser's spread (left by the untrained critic's first values), and the policy learnt to drop the cube."""
+    cfg = compose_config(["learner=rl_games", f"task={task}", "sim_device=cpu", "rl_device=cpu"])
+    task_scale = float(cfg.task.env.get("rewardScale", 1.0))
+    shaper = cfg.train.params.config.get("reward_shaper") or {}
+    assert task_scale * float(shaper.get("scale_value", 1.0)) == pytest.approx(IGE_REWARD_SCALE[task])
