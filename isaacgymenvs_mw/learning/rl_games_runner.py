@@ -19,10 +19,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-import gymnasium as gym
-import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.loggers import make_writer
@@ -55,6 +53,15 @@ def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
     if task.observations.images is not None:
         raise ConfigError(f"task={cfg.task_name} observes camera images, which learner=rl_games does not feed to a "
                           "CNN here: train it with the rsl_rl learner")
+    task_scale = OmegaConf.select(cfg, "task.env.rewardScale", default=1.0)
+    shaper_scale = (config.get("reward_shaper") or {}).get("scale_value", 1.0)
+    if float(task_scale) != 1.0 and float(shaper_scale) != 1.0:
+        # Some of our tasks apply IsaacGymEnvs' rl_games reward scale themselves (their rsl_rl recipes need it), so an
+        # IsaacGymEnvs YAML's reward_shaper scales the reward a second time.
+        print(f"[train] note: task.env.rewardScale={task_scale:g} and train.params.config.reward_shaper.scale_value="
+              f"{shaper_scale:g} both scale the reward ({float(task_scale) * float(shaper_scale):g} in all); for "
+              f"IsaacGymEnvs' scale give task.env.rewardScale=1 or train.params.config.reward_shaper.scale_value=1",
+              flush=True)
     config["num_actors"] = task.num_envs
     config["device"] = config["device_name"] = task.rl_device
     config["multi_gpu"] = bool(cfg.get("multi_gpu", False))
@@ -102,7 +109,7 @@ class RlGamesVecEnv:
         info = {"action_space": self.task.action_space, "observation_space": self.task.observation_space,
                 "agents": 1, "value_size": 1}
         if self.task.num_states > 0:
-            info["state_space"] = gym.spaces.Box(-np.inf, np.inf, shape=(self.task.num_states,), dtype=np.float32)
+            info["state_space"] = self.task.state_space  # with env.history.critic: the stacked size
         return info
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
