@@ -158,7 +158,6 @@ class RlGamesRunner(TrainingRun):
         self.params = params
         config = params["config"]
         self.save_frequency = int(config.get("save_frequency", 0) or 0)
-        self.save_best_after = int(config.get("save_best_after", 0) or 0)
         self.max_frames = int(config.get("max_frames", -1) or -1)
         self.score_to_win = config.get("score_to_win")
         self.max_iterations = int(config.get("max_epochs", -1))
@@ -180,6 +179,7 @@ class RlGamesRunner(TrainingRun):
         self.steps_per_env = int(self.agent.horizon_length)
         self._started = False
         self.init_training_run(LearnerGuard(self._learner_tensors), is_main=self.agent.global_rank == 0)
+        self.best_after = int(config.get("save_best_after", 0) or 0)
 
     def _learner_tensors(self) -> list[torch.Tensor]:
         """Every tensor that defines the learner: the model's parameters and buffers (normalisers included), a
@@ -294,16 +294,6 @@ class RlGamesRunner(TrainingRun):
                   flush=True)
             return True
         return False
-
-    def _save(self, path: str) -> None:
-        """As TrainingRun._save; model_best.pt considers checkpoints from ``save_best_after`` on."""
-        best = self.best
-        if best is not None and self.current_learning_iteration < self.save_best_after:
-            self.best = None
-        try:
-            super()._save(path)
-        finally:
-            self.best = best
 
     def save(self, path: str) -> None:
         """rl_games' checkpoint (model, optimiser, epoch, frame) with this run's iteration and env steps; written

@@ -41,6 +41,7 @@ class TrainingRun:
         self.time_budget_reached = False  # learn() ended at max_train_time_s, before its last iteration
         self.last_checkpoint: str | None = None
         self.best = None  # save_best: a BestCheckpoint that model_best.pt follows
+        self.best_after = 0  # model_best.pt considers checkpoints from this iteration on (rl_games' save_best_after)
         # Learner health: optimiser steps skipped for a non-finite loss or gradient, worlds whose observation or
         # reward held NaN/inf, and how often the last finite learner state was put back.
         self.skipped_steps = 0
@@ -91,7 +92,7 @@ class TrainingRun:
     def _save(self, path: str) -> None:
         self.save(path)
         self.last_checkpoint = path
-        if self.best is not None:
+        if self.best is not None and self.current_learning_iteration >= self.best_after:
             self.best.consider(self.history, path)
 
     def _keep_learner_finite(self, iteration: int) -> str | None:
