@@ -18,7 +18,8 @@ import time
 import torch
 from tensordict import TensorDict
 
-from isaacgymenvs_mw.learning.runner import device_description, package_versions, rsl_rl_config
+from isaacgymenvs_mw.learning.reporting import device_description, package_versions
+from isaacgymenvs_mw.learning.runner import rsl_rl_config
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
 
 CLASSES = {"PPO": "PPO", "SyncFreePPO": "isaacgymenvs_mw.learning.ppo:SyncFreePPO"}

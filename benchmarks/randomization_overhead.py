@@ -16,7 +16,7 @@ import time
 import torch
 
 from isaacgymenvs_mw.learning.launch import build_task
-from isaacgymenvs_mw.learning.runner import device_description, package_versions
+from isaacgymenvs_mw.learning.reporting import device_description, package_versions
 from isaacgymenvs_mw.utils.config import compose_config
 from randomization_presets import PRESETS, apply
 from throughput import _physics_rate, _rate

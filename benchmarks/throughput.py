@@ -21,7 +21,8 @@ import time
 import torch
 
 from isaacgymenvs_mw.learning.launch import build_task, seed_run
-from isaacgymenvs_mw.learning.runner import Runner, device_description, package_versions, rsl_rl_config
+from isaacgymenvs_mw.learning.reporting import device_description, package_versions
+from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
 

@@ -305,7 +305,7 @@ def test_the_hand_is_welded_at_base_init_state_and_the_goal_is_a_mocap_body():
 
 def test_longest_episode_counts_the_time_limits_successes_restart():
     """With maxConsecutiveSuccesses each success restarts the time limit, so an episode can last that many limits
-    and one more; test mode (runner.evaluate) waits that long, or it would count a long episode's successes as 0."""
+    and one more; test mode (evaluation.evaluate) waits that long, or it would count a long episode's successes as 0."""
     env = make("AllegroHand", num_envs=2, seed=0, **CPU,
                overrides=["task.env.maxConsecutiveSuccesses=3", "task.env.episodeLength_s=0.2"])
     assert env.max_episode_length == 6 and env.longest_episode() == 24

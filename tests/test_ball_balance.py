@@ -229,11 +229,11 @@ def test_an_asset_without_the_leg_sensors_is_a_one_line_error_naming_the_key(tmp
 
 
 def test_the_best_checkpoint_follows_the_fraction_of_episodes_that_keep_the_ball_not_the_reward(tmp_path):
-    from isaacgymenvs_mw.learning.runner import BestCheckpoint
-    from isaacgymenvs_mw.learning.vecenv import training_metric_keys
+    from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
+    from isaacgymenvs_mw.learning.vecenv import success_metric_key
 
     env = make("BallBalance", num_envs=1)
-    best = BestCheckpoint(tmp_path, "auto", training_metric_keys(env))  # sweep_metric=auto, as shipped
+    best = BestCheckpoint(tmp_path, "auto", success_metric_key(env))  # sweep_metric=auto, as shipped
     # two saved checkpoints: the second has the higher reward but keeps the ball in fewer episodes
     history = [{"iteration": 1, "timeout_fraction": 0.98, "mean_episode_reward": 300.0}]
     (tmp_path / "model_1.pt").write_bytes(b"iteration 1")
@@ -242,4 +242,5 @@ def test_the_best_checkpoint_follows_the_fraction_of_episodes_that_keep_the_ball
     (tmp_path / "model_2.pt").write_bytes(b"iteration 2")
     best.consider(history, str(tmp_path / "model_2.pt"))
     assert best.summary()["metric"] == "timeout_fraction" and best.iteration == 1
+    assert best.summary()["chosen_by"] == "declared success metric"
     assert (tmp_path / "model_best.pt").read_bytes() == b"iteration 1"

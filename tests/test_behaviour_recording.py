@@ -34,6 +34,9 @@ TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Te
          # recorded when the task was added (issue 47)
          "Quadcopter", "BallBalance"]
 NUM_ENVS, STEPS, SEED = 2, 50, 0
+# Quantities a task reports since its recording was made, which the recording cannot hold: not compared here (their
+# own tests check them). Quadcopter: its success rate in training (issue 60), an episode sum beside the physics.
+ADDED_SINCE_RECORDING = {"Quadcopter": {"episode_metrics/reached_target"}}
 # The terrain tasks build a whole map for any number of worlds: a small one keeps the test fast.
 SMALL_MAP = ["task.env.terrain.numLevels=3", "task.env.terrain.numTerrains=2", "task.env.terrain.maxInitLevel=2"]
 
@@ -106,6 +109,9 @@ def record(tasks: list[str]) -> None:
 def test_task_behaves_as_recorded(task):
     expected = dict(np.load(DATA / f"{task}.npz"))
     got = run_task(task)
+    added = ADDED_SINCE_RECORDING.get(task, set())
+    assert added.isdisjoint(expected) and added <= set(got), added  # recorded since, or no longer reported: update
+    got = {name: value for name, value in got.items() if name not in added}
     assert sorted(got) == sorted(expected), "the recorded quantities differ (names of episode terms, states)"
     for name, want in expected.items():
         have = got[name]

@@ -16,7 +16,7 @@ import torch
 from conftest import train_one_iteration_then_test
 
 from isaacgymenvs_mw import make
-from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, PER_STEP
 from isaacgymenvs_mw.tasks.quadcopter import compute_quadcopter_reward, quadcopter_failed
 from isaacgymenvs_mw.utils.errors import ConfigError
 
@@ -162,6 +162,23 @@ def test_test_mode_reports_distance_and_reached_target_by_the_distance_at_the_ep
     env.reset_idx(mask)
     assert env.metrics.recorded(OUTCOME)["reached_target"].tolist() == [0.0, 1.0]
     env.metrics.evaluate(False)
+
+
+def test_training_counts_the_episodes_that_end_at_the_target_as_its_success(env):
+    # Training (no test mode): the sum over the ending episodes of those within 0.1 m, logged as the rate
+    # Episode/reached_target that save_best follows; no per-env outcome.
+    env.metrics.begin_step()
+    target = torch.tensor([0.0, 0.0, 1.0])
+    mask = torch.tensor([True, True])
+    env.sim.write_state(mask, root_pos=torch.stack([target + torch.tensor([0.0, 0.09, 0.0]),
+                                                    target + torch.tensor([0.0, 0.0, 0.11])]))
+    env.reset_idx(mask)
+    assert env.metrics.recorded(EPISODE_SUM)["reached_target"].item() == 1.0
+    assert "reached_target" not in env.metrics.recorded(OUTCOME)
+    env.metrics.begin_step()
+    env.sim.write_state(mask, root_pos=target.expand(2, 3))
+    env.reset_idx(torch.tensor([False, True]))  # one episode ends, at the target; the other runs on
+    assert env.metrics.recorded(EPISODE_SUM)["reached_target"].item() == 1.0
 
 
 def test_spin_is_capped_at_max_angular_velocity_with_its_direction_kept(env):

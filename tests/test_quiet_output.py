@@ -73,14 +73,14 @@ def test_a_native_crash_leaves_the_python_stack_in_the_log(tmp_path):
 
 
 def test_eta_formats_the_time_left():
-    from isaacgymenvs_mw.learning.runner import _duration
+    from isaacgymenvs_mw.learning.reporting import duration
 
-    assert [_duration(s) for s in (0.4, 42, 185, 3725, float("nan"))] == ["0s", "42s", "3m05s", "1h02m", "--"]
+    assert [duration(s) for s in (0.4, 42, 185, 3725, float("nan"))] == ["0s", "42s", "3m05s", "1h02m", "--"]
 
 
 def test_eta_leaves_out_the_compiling_first_iteration():
     # Go1Terrain's first iteration (compiling) took minutes and its ETA read 8h10m; steady ones are what is left.
-    from isaacgymenvs_mw.learning.runner import steady_iteration_s
+    from isaacgymenvs_mw.learning.reporting import steady_iteration_s
 
     history = [{"collect_s": 90.0, "learn_s": 10.0}, {"collect_s": 0.3, "learn_s": 0.1},
                {"collect_s": 0.5, "learn_s": 0.1}]
@@ -89,11 +89,11 @@ def test_eta_leaves_out_the_compiling_first_iteration():
 
 
 def test_a_slow_first_collect_reports_progress(monkeypatch, capsys):
-    from isaacgymenvs_mw.learning import runner
+    from isaacgymenvs_mw.learning import reporting
 
     clock = iter([100.0, 104.0, 120.0, 150.0])  # seconds at steps 1, 2, 3, 4 (the last: no line, the update follows)
-    monkeypatch.setattr(runner.time, "perf_counter", lambda: next(clock))
-    progress = runner._FirstCollectProgress(iteration=1, steps=4, started=95.0, every_s=15.0)
+    monkeypatch.setattr(reporting.time, "perf_counter", lambda: next(clock))
+    progress = reporting.FirstCollectProgress(iteration=1, steps=4, started=95.0, every_s=15.0)
     for step in range(1, 5):
         progress.step_done(step)
     lines = capsys.readouterr().out.splitlines()

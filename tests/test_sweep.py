@@ -78,12 +78,12 @@ def test_final_and_best_are_trailing_means_of_the_iterations_that_reported_the_m
     final, best = reference_row(values)
     assert row["final"] == pytest.approx(final, rel=1e-12) and row["best"] == pytest.approx(best, rel=1e-12)
     assert row["final_over_best"] == pytest.approx(final / best, rel=1e-12)
-    assert metric_key(history, "auto", ["Episode/success"]) == "Episode/success"  # the task's first declared one
-    assert metric_key([{"mean_episode_reward": 1.0}], "auto", []) == "mean_episode_reward"
-    assert metric_key(history, "success", ["Episode/success"]) == "Episode/success"
+    assert metric_key(history, "auto", "Episode/success") == "Episode/success"  # the task's declared success
+    assert metric_key([{"mean_episode_reward": 1.0}], "auto", None) == "mean_episode_reward"  # none declared
+    assert metric_key(history, "success", "Episode/success") == "Episode/success"
     plain = [{"time_s": 1.0, "timeout_fraction": 0.5, "mean_episode_length": 10.0}]
-    assert metric_key(plain, "timeout_fraction", []) == "timeout_fraction"  # a history key as it is
-    assert metric_key(plain, "success", []) == "Episode/success"  # a declared metric's short name, even when absent
+    assert metric_key(plain, "timeout_fraction", "Episode/success") == "timeout_fraction"  # a history key as it is
+    assert metric_key(plain, "success", None) == "Episode/success"  # a declared metric's short name, even when absent
 
 
 def test_the_table_says_where_a_lanes_action_noise_collapsed():
@@ -108,6 +108,7 @@ def test_a_cartpole_sweep_writes_its_jobs_table_and_curves_under_runs_dir_only(t
     assert sweep_dir.name.startswith("Cartpole_")
     table = json.loads((sweep_dir / "sweep.json").read_text())
     assert table["metric"] == "mean_episode_reward"  # Cartpole declares no metric of its own
+    assert table["chosen_by"] == "episode reward"
     assert [row["label"] for row in table["jobs"]] == ["seed=1", "seed=2"]
     for k, row in enumerate(table["jobs"]):
         (summary_path,) = (sweep_dir / f"job{k}").glob("Cartpole/*/summary.json")

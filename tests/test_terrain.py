@@ -401,7 +401,7 @@ def test_video_frames_the_robot_on_the_terrain(task, tmp_path):
 
 
 def test_evaluation_reports_each_terrain_level():
-    from isaacgymenvs_mw.learning.runner import evaluate
+    from isaacgymenvs_mw.learning.evaluation import evaluate
 
     t = make(overrides=[T + "curriculum=False", "task.env.episodeLength_s=0.5"])
     levels = t.terrain_levels.clone()

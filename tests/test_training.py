@@ -172,6 +172,7 @@ def test_save_best_keeps_the_saved_checkpoint_where_the_metric_was_highest(tmp_p
     best = max(means, key=lambda it: (means[it], -it))
     kept = summary["best_checkpoint"]
     assert kept["iteration"] == best and kept["metric"] == "mean_episode_reward"
+    assert kept["chosen_by"] == "episode reward"  # Cartpole declares no success metric
     assert kept["value"] == pytest.approx(means[best])
     assert (run_dir / "model_best.pt").read_bytes() == (run_dir / f"model_{best}.pt").read_bytes()
 
@@ -182,12 +183,12 @@ def test_without_save_best_no_best_checkpoint_is_kept(tmp_path, run_args):
     assert not (only_run_dir(tmp_path / "runs") / "model_best.pt").exists()
 
 
-@pytest.mark.parametrize("metric, declared, key", [("auto", ["Episode/success"], "Episode/success"),
-                                                   ("timeout_fraction", [], "timeout_fraction")])
-def test_the_best_checkpoint_follows_the_smoothed_metric_not_the_last(tmp_path, metric, declared, key):
-    from isaacgymenvs_mw.learning.runner import BestCheckpoint
+@pytest.mark.parametrize("metric, success, key", [("auto", "Episode/success", "Episode/success"),
+                                                  ("timeout_fraction", None, "timeout_fraction")])
+def test_the_best_checkpoint_follows_the_smoothed_metric_not_the_last(tmp_path, metric, success, key):
+    from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
 
-    best = BestCheckpoint(tmp_path, metric, declared)
+    best = BestCheckpoint(tmp_path, metric, success)
     # 30 iterations: the metric rises to 0.9 at iteration 15, then falls; a checkpoint every 10 iterations
     values = [min(i, 15) * 0.06 - max(0, i - 15) * 0.05 for i in range(1, 31)]
     history = []
@@ -208,9 +209,9 @@ def test_the_best_checkpoint_follows_the_smoothed_metric_not_the_last(tmp_path, 
 @pytest.mark.parametrize("values, line", [([0.5] * 30, True), ([0.9 - 0.01 * i for i in range(30)], True),
                                           ([0.01 * i for i in range(30)], False)])
 def test_a_best_checkpoint_that_is_the_first_one_says_so(tmp_path, values, line):
-    from isaacgymenvs_mw.learning.runner import BestCheckpoint
+    from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
 
-    best = BestCheckpoint(tmp_path, "auto", ["Episode/success"])
+    best = BestCheckpoint(tmp_path, "auto", "Episode/success")
     history = []
     for i, value in enumerate(values, start=1):
         history.append({"iteration": i, "Episode/success": value})

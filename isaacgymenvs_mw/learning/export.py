@@ -23,7 +23,7 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 
 from isaacgymenvs_mw._version import __version__
-from isaacgymenvs_mw.learning.runner import package_versions
+from isaacgymenvs_mw.learning.reporting import package_versions
 from isaacgymenvs_mw.utils.files import disk_errors_named
 
 METADATA_FILE = "metadata.json"  # name of the TorchScript extra file

@@ -12,23 +12,17 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
+from isaacgymenvs_mw.learning.evaluation import evaluate
 from isaacgymenvs_mw.learning.export import export_policy
 from isaacgymenvs_mw.learning.loggers import check_logger
-from isaacgymenvs_mw.learning.runner import (
-    BestCheckpoint,
-    Runner,
-    device_description,
-    episode_metrics,
-    evaluate,
-    package_versions,
-    rsl_rl_config,
-    write_json,
-)
+from isaacgymenvs_mw.learning.reporting import device_description, package_versions, write_json
 from isaacgymenvs_mw.learning.rl_games_config import is_rl_games_config
+from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.sweep import evaluation_outputs
 from isaacgymenvs_mw.learning.train_config import check_train_config
-from isaacgymenvs_mw.learning.training_run import TrainingRun
-from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, training_metric_keys
+from isaacgymenvs_mw.learning.training_run import TrainingRun, episode_metrics
+from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, success_metric_key, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
 from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, checkpoint_path, time_budget, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
@@ -120,7 +114,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         runner.log_dir = str(run_dir)
         runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
         if cfg.get("save_best", False):
-            runner.best = BestCheckpoint(run_dir, str(cfg.get("sweep_metric", "auto")), training_metric_keys(task))
+            runner.best = BestCheckpoint(run_dir, str(cfg.get("sweep_metric", "auto")), success_metric_key(task))
         if videos:
             _attach_video_recorder(cfg, task, run_dir / "videos")
     start_it, start_steps = runner.current_learning_iteration, runner.total_env_steps
@@ -171,7 +165,8 @@ def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start: tuple
         "mean_episode_length": means.get("mean_episode_length"),
         "timeout_fraction": means.get("timeout_fraction"),
         **episode_metrics(means),  # what the task declares, by name (terrain_level on the terrain tasks)
-        "metrics": training_metric_keys(task),  # their history keys, in the task's order (the sweep's "auto")
+        "metrics": training_metric_keys(task),  # their history keys, in the task's order
+        "success_metric": success_metric_key(task),  # the history key of its declared success (sweep_metric=auto)
         "nonfinite_resets": runner.nonfinite_resets,
         **runner.learner_health(),  # optimiser steps skipped, states restored
         "noise_collapse": runner.noise_collapse,  # the first action whose noise collapsed with the rate at its floor

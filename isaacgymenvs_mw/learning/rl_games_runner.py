@@ -25,7 +25,8 @@ from omegaconf import DictConfig, OmegaConf
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config
-from isaacgymenvs_mw.learning.training_run import TrainingRun, _FirstCollectProgress, keep_stop_handler
+from isaacgymenvs_mw.learning.reporting import FirstCollectProgress
+from isaacgymenvs_mw.learning.training_run import TrainingRun, keep_stop_handler
 from isaacgymenvs_mw.learning.vecenv import EpisodeStats, record_step
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import to_dict
@@ -235,7 +236,7 @@ class RlGamesRunner(TrainingRun):
         start_it = self.current_learning_iteration
         last_it = start_it + num_learning_iterations
         steps = {"done": 0}
-        progress = _FirstCollectProgress(start_it + 1, self.steps_per_env, time.perf_counter()) if self.is_main \
+        progress = FirstCollectProgress(start_it + 1, self.steps_per_env, time.perf_counter()) if self.is_main \
             else None
 
         def after_step() -> None:

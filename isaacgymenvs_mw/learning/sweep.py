@@ -15,10 +15,11 @@ product, in Hydra's order). Each job is one ``train.py`` process with the job's 
   sweep metric, its test-mode values for the last and the best checkpoint, iterations, training time and rate) and
   ``sweep.png`` the metric against training time, one line per job.
 
-The metric (run key ``sweep_metric``; ``auto``: the task's primary metric, else the first metric it declares, such
-as ``success``, ``consecutive_successes`` or ``terrain_level``, else ``mean_episode_reward``) is read from each run's
-summary.json history, smoothed over ``SMOOTHING`` iterations that finished episodes: "final" is the smoothed value at
-the end, "best" the largest smoothed value, so that final/best <= 1 says how much of its best a run kept.
+The metric (run key ``sweep_metric``; ``auto``: the task's declared success metric, such as ``success``,
+``consecutive_successes``, ``reached_target`` or ``terrain_level``, else ``mean_episode_reward``; the rule is
+save_best's, learning/best_checkpoint.py) is read from each run's summary.json history, smoothed over ``SMOOTHING``
+iterations that finished episodes: "final" is the smoothed value at the end, "best" the largest smoothed value, so
+that final/best <= 1 says how much of its best a run kept.
 
 SIGTERM or SIGINT to the sweep reaches every running job (each stops with its checkpoint and summary as a single
 run does), starts no new one, writes the aggregate of what exists and exits with the signal's status.
@@ -38,12 +39,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from isaacgymenvs_mw.learning.best_checkpoint import (BEST_CHECKPOINT, METRIC_PREFIX, SMOOTHING, chosen_by,
+                                                      metric_key, smoothed)
 from isaacgymenvs_mw.utils.config import checkpoint_iteration, latest_checkpoint
 from isaacgymenvs_mw.utils.errors import ConfigError
-
-SMOOTHING = 10  # iterations averaged into a point of the final/best comparison
-METRIC_PREFIX = "Episode/"  # where a task's declared metrics live in a run's history (learning/vecenv.py)
-BEST_CHECKPOINT = "model_best.pt"  # save_best's copy of the best saved checkpoint, in the run folder
 
 
 def evaluation_outputs(checkpoint: Path) -> tuple[Path, Path, Path]:
@@ -283,28 +282,6 @@ def _copy_output(job: Job, mode: str = "w") -> None:
 
 
 # ---------------------------------------------------------------------------------------------------- aggregate
-def metric_key(history: list[dict], metric: str, declared: list[str]) -> str:
-    """The history key of ``metric`` (``auto``: the first of the task's ``declared`` metrics, summary.json's
-    "metrics", else the episode reward): a key of the history as it is (``timeout_fraction``), else a declared
-    metric's short name (``success``)."""
-    if metric != "auto":
-        if any(metric in record for record in history):
-            return metric
-        return metric if metric.startswith(METRIC_PREFIX) or metric.startswith("mean_") else METRIC_PREFIX + metric
-    return declared[0] if declared else "mean_episode_reward"
-
-
-def smoothed(values: list[float], window: int = SMOOTHING) -> list[float]:
-    """Trailing means over ``window`` values (fewer at the start)."""
-    out, total = [], 0.0
-    for i, value in enumerate(values):
-        total += value
-        if i >= window:
-            total -= values[i - window]
-        out.append(total / min(i + 1, window))
-    return out
-
-
 def summarise(summary: dict, key: str) -> dict:
     """One row of the sweep table from a run's summary.json."""
     points = [(float(r["time_s"]), float(r[key])) for r in summary.get("history", []) if r.get(key) is not None]
@@ -329,7 +306,8 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
     """sweep.json, sweep.md and sweep.png from the jobs' summaries; returns the metric's history key and the rows."""
     summaries = [_summary_of(job) for job in jobs]
     histories = [r for s in summaries if s for r in s.get("history", [])]
-    key = metric_key(histories, metric, next((s.get("metrics", []) for s in summaries if s), []))
+    success = next((s.get("success_metric") for s in summaries if s), None)
+    key = metric_key(histories, metric, success)
     if histories and not any(r.get(key) is not None for r in histories):
         known = sorted({k for r in histories for k in r
                         if k.startswith(METRIC_PREFIX) or k.startswith("mean_") or k == "timeout_fraction"})
@@ -342,7 +320,8 @@ def aggregate(jobs: list[Job], sweep_dir: Path, metric: str) -> tuple[str, list[
         row["test"] = test_result(job, key)
         row["test_best"] = test_result(job, key, best=True)
         rows.append(row)
-    (sweep_dir / "sweep.json").write_text(json.dumps({"metric": key, "smoothing": SMOOTHING, "jobs": rows},
+    (sweep_dir / "sweep.json").write_text(json.dumps({"metric": key, "chosen_by": chosen_by(metric, success),
+                                                     "smoothing": SMOOTHING, "jobs": rows},
                                                      indent=2) + "\n")
     (sweep_dir / "sweep.md").write_text(markdown_table(rows, key) + "\n")
     plotted = [(s, job.label) for job, s in zip(jobs, summaries) if s and any(r.get(key) is not None

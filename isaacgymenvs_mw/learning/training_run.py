@@ -1,6 +1,7 @@
 """What a training run keeps and reports, whichever learner updates the policy (learning/runner.py: rsl-rl-lib's PPO;
-learning/rl_games_runner.py: rl_games'): the iteration's statistics, history and progress line, TensorBoard
-scalars, checkpoints (and the best one), the time budget, stop requests and the learner's finiteness guard.
+learning/rl_games_runner.py: rl_games'): the iteration's statistics and history (reported by learning/reporting.py),
+checkpoints (and the best one, learning/best_checkpoint.py), the time budget, stop requests and the learner's
+finiteness guard.
 
 A runner that inherits ``TrainingRun`` calls ``init_training_run`` in its constructor and provides ``env`` (with
 ``stats``, ``num_envs``, ``episode_length_buf``, ``max_episode_length``), ``steps_per_env``, ``gpu_world_size``,
@@ -9,14 +10,13 @@ A runner that inherits ``TrainingRun`` calls ``init_training_run`` in its constr
 
 from __future__ import annotations
 
-import math
 import os
-import time
 from collections import deque
 
 import torch
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState
+from isaacgymenvs_mw.learning.reporting import INCIDENT_COUNTS, duration, report_iteration, steady_iteration_s
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP
 from isaacgymenvs_mw.utils.files import DiskWriteError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested
@@ -40,7 +40,7 @@ class TrainingRun:
         self.interrupted_checkpoint: str | None = None  # the model_<it>_interrupted.pt a stop wrote
         self.time_budget_reached = False  # learn() ended at max_train_time_s, before its last iteration
         self.last_checkpoint: str | None = None
-        self.best = None  # save_best: a BestCheckpoint that model_best.pt follows
+        self.best = None  # save_best: the BestCheckpoint (learning/best_checkpoint.py) model_best.pt follows
         self.best_after = 0  # model_best.pt considers checkpoints from this iteration on (rl_games' save_best_after)
         # Learner health: optimiser steps skipped for a non-finite loss or gradient, worlds whose observation or
         # reward held NaN/inf, and how often the last finite learner state was put back.
@@ -127,12 +127,14 @@ class TrainingRun:
 
     def _log_iteration(self, writer, it: int, last_it: int, collect_s: float, learn_s: float, losses: dict,
                        skipped: int = 0, restored: str | None = None) -> None:
+        """Read the iteration's episode statistics, count its steps, time and incidents, append its history entry, and
+        report it (learning/reporting.py) on the main rank."""
         env = self.env
         stats = env.stats.pop()  # the env statistics' one host read of the iteration
-        world = self.gpu_world_size
-        env_steps = self.steps_per_env * env.num_envs * world
+        env_steps = self.steps_per_env * env.num_envs * self.gpu_world_size
         self.total_env_steps += env_steps
         self.train_time += collect_s + learn_s
+        ended_before = bool(self.recent)
         if stats["episodes"] > 0:
             self.recent.append(stats)
         fps = env_steps / max(collect_s + learn_s, 1e-9)
@@ -148,85 +150,19 @@ class TrainingRun:
         if not self.is_main:
             return
         self._notice_noise_collapse(record)
-        if writer is not None:
-            for key, value in losses.items():
-                writer.add_scalar(f"Loss/{key}", value, it)
-            writer.add_scalar("Loss/learning_rate", record["learning_rate"], it)
-            if "action_std_mean" in record:
-                writer.add_scalar("Policy/mean_std", record["action_std_mean"], it)
-                writer.add_scalar("Policy/min_std", record["action_std_min"], it)
-                writer.add_scalar("Policy/min_std_action", record["action_std_min_index"], it)
-            writer.add_scalar("Perf/total_fps", fps, it)
-            writer.add_scalar("Perf/collection_time", collect_s, it)
-            writer.add_scalar("Perf/learning_time", learn_s, it)
-            for key, value in stats.items():
-                if key in ("episodes", "nonfinite_resets", "nonfinite_inputs"):
-                    continue
-                tag = key if "/" in key else f"Train/{key}"
-                writer.add_scalar(tag, value, it)
-                if key in ("mean_episode_reward", "mean_episode_length"):
-                    writer.add_scalar(f"{tag}/time", value, int(self.train_time))
-        if writer is not None:
-            writer.add_scalar("Sim/nonfinite_resets", self.nonfinite_resets, it)
-            writer.add_scalar("Learner/skipped_optimizer_steps", self.skipped_steps, it)
-            writer.add_scalar("Learner/nonfinite_inputs", self.nonfinite_inputs, it)
-            writer.add_scalar("Learner/restores", self.guard.restores, it)
-        if stats["nonfinite_resets"]:
-            print(f"[it {it + 1:>5}] {int(stats['nonfinite_resets'])} env(s) had NaN/inf or diverged (a speed "
-                  f"above 1e4) simulator state and were reset ({self.nonfinite_resets} so far)", flush=True)
-        if stats.get("nonfinite_inputs"):
-            print(f"[it {it + 1:>5}] {int(stats['nonfinite_inputs'])} observation(s) or reward(s) held NaN/inf and "
-                  f"were replaced by 0 before the learner saw them ({self.nonfinite_inputs} so far)", flush=True)
-        if skipped:
-            print(f"[it {it + 1:>5}] {skipped} optimiser step(s) skipped: their loss or gradient was not finite "
-                  f"({self.skipped_steps} so far)", flush=True)
-        if restored is not None:
-            print(f"[it {it + 1:>5}] {restored}", flush=True)
-        if stats["episodes"]:
-            episodes = f"ep_rew {stats['mean_episode_reward']:9.2f} | ep_len {stats['mean_episode_length']:7.1f}"
-            for key, value in stats.items():  # the metrics the task declares (e.g. a curriculum's terrain level)
-                if key.startswith(METRIC_GROUP):
-                    episodes += f" | {key[len(METRIC_GROUP):]} {value:5.2f}"
-        else:  # a host read, but only on iterations where no episode ended
-            longest = int(env.episode_length_buf.max())
-            # "yet" only before the first episode end: later, a quiet iteration is one where every env is mid-episode
-            # (e.g. time-outs of envs reset together), not a run that has never ended an episode.
-            when = "this iteration" if self.recent else "yet"
-            episodes = f"no episode ended {when} (longest {longest}/{int(env.max_episode_length)} steps)"
-        eta = _duration(steady_iteration_s(self.history) * (last_it - it - 1)) if it + 1 < last_it else "0s"
-        print(
-            f"[it {it + 1:>5}/{last_it}] steps {self.total_env_steps:>11,} | {fps:>10,.0f} steps/s | "
-            f"{episodes} | value_loss {losses.get('value', float('nan')):8.4f} | "
-            f"collect {collect_s:6.2f}s learn {learn_s:5.2f}s | ETA {eta}",
-            flush=True,
-        )
+        eta = duration(steady_iteration_s(self.history) * (last_it - it - 1)) if it + 1 < last_it else "0s"
+        report_iteration(writer, record, stats, losses, {**self.learner_health(), "nonfinite_resets":
+                                                         self.nonfinite_resets}, last_it, eta,
+                         lambda: int(env.episode_length_buf.max()), int(env.max_episode_length), ended_before,
+                         restored)
 
     def recent_means(self) -> dict[str, float]:
         """Episode statistics over the last few iterations (weighted by episodes)."""
         total = sum(s["episodes"] for s in self.recent)
         if total == 0:
             return {}
-        keys = [k for k in self.recent[-1] if k not in ("episodes", "nonfinite_resets", "nonfinite_inputs")]
+        keys = [k for k in self.recent[-1] if k not in INCIDENT_COUNTS]
         return {k: sum(s.get(k, 0.0) * s["episodes"] for s in self.recent) / total for k in keys}
-
-
-class _FirstCollectProgress:
-    """A line every ``every_s`` seconds while the first iteration collects, so that a run with many worlds on a CPU
-    (or a long first compile) does not look hung. Host clocks only: no GPU sync, and silent when steps are fast."""
-
-    def __init__(self, iteration: int, steps: int, started: float, every_s: float = 15.0):
-        self.iteration, self.steps, self.started, self.every_s = iteration, steps, started, every_s
-        self.last_print = started
-
-    def step_done(self, step: int) -> None:
-        now = time.perf_counter()
-        if now - self.last_print < self.every_s or step == self.steps:
-            return
-        self.last_print = now
-        spent = now - self.started
-        left = spent / step * (self.steps - step)
-        print(f"[it {self.iteration:>5}] collecting: env step {step}/{self.steps} after {_duration(spent)}, "
-              f"about {_duration(left)} more before the update", flush=True)
 
 
 def keep_stop_handler() -> None:
@@ -239,24 +175,3 @@ def keep_stop_handler() -> None:
 def episode_metrics(means: dict[str, float]) -> dict[str, float]:
     """The task's declared metrics among episode statistics, by their own names (``terrain_level``)."""
     return {key[len(METRIC_GROUP):]: value for key, value in means.items() if key.startswith(METRIC_GROUP)}
-
-
-def steady_iteration_s(history: list[dict]) -> float:
-    """Mean seconds per iteration without this run's first one (Warp and torch.compile compile during it, which
-    made a Go1Terrain ETA read 8h10m), or NaN while only the first has run."""
-    steady = history[1:]
-    if not steady:
-        return float("nan")
-    return sum(r["collect_s"] + r["learn_s"] for r in steady) / len(steady)
-
-
-def _duration(seconds: float) -> str:
-    """Seconds as 42s, 3m05s or 1h02m ('--' when not known yet)."""
-    if not math.isfinite(seconds):
-        return "--"
-    s = int(round(seconds))
-    if s < 60:
-        return f"{s}s"
-    if s < 3600:
-        return f"{s // 60}m{s % 60:02d}s"
-    return f"{s // 3600}h{s % 3600 // 60:02d}m"

@@ -18,9 +18,18 @@ METRIC_GROUP = "Episode/"
 
 def training_metric_keys(task: VecTask) -> list[str]:
     """The history keys of the metrics the task declares for training (EPISODE_SUM and RUNNING), in their order,
-    after the task's ``primary_metric`` when it names one: the first is what ``sweep_metric=auto`` follows."""
+    after the task's ``primary_metric`` when it names one (summary.json's "metrics")."""
     declared = [METRIC_GROUP + m.name for m in task.metrics.declared if m.kind in (EPISODE_SUM, RUNNING)]
     return ([task.primary_metric] if task.primary_metric else []) + declared
+
+
+def success_metric_key(task: VecTask) -> str | None:
+    """The history key of the task's declared success: its ``primary_metric``, else its first ``Metric(success=True)``
+    of a training kind (EPISODE_SUM, RUNNING), else None. What ``sweep_metric=auto`` follows (save_best, sweeps)."""
+    if task.primary_metric:
+        return task.primary_metric
+    return next((METRIC_GROUP + m.name for m in task.metrics.declared
+                 if m.success and m.kind in (EPISODE_SUM, RUNNING)), None)
 
 
 class EpisodeStats:

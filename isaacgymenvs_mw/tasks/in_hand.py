@@ -61,9 +61,9 @@ _NUMBER_KEYS = ("dofSpeedScale", "actionsMovingAverage", "resetPositionNoise", "
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
 # IGE's consecutive_successes (a running average over resets, averFactor), the goals reached per ended episode, and
 # in test mode each env's first episode's count.
-CONSECUTIVE_SUCCESSES = Metric("consecutive_successes", RUNNING)
+CONSECUTIVE_SUCCESSES = Metric("consecutive_successes", RUNNING, success=True)
 SUCCESSES = Metric("successes", EPISODE_SUM)
-EPISODE_SUCCESSES = Metric("consecutive_successes", OUTCOME)
+EPISODE_SUCCESSES = Metric("consecutive_successes", OUTCOME, success=True)
 REWARD_SCALE_KEYS = {"dist": "distRewardScale", "rot": "rotRewardScale", "action_penalty": "actionPenaltyScale",
                      "reach_goal": "reachGoalBonus", "fall": "fallPenalty"}
 

@@ -40,9 +40,10 @@ from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
-# Test mode: |command - base velocity| in the horizontal plane (m/s), each step; the terrain curriculum's mean level.
+# Test mode: |command - base velocity| in the horizontal plane (m/s), each step; the terrain curriculum's mean level,
+# the terrain tasks' success (their target is a level: a robot is promoted for walking its terrain).
 LIN_VEL_TRACKING_ERROR = Metric("lin_vel_tracking_error", PER_STEP)
-TERRAIN_LEVEL = Metric("terrain_level", EPISODE_SUM)
+TERRAIN_LEVEL = Metric("terrain_level", EPISODE_SUM, success=True)
 
 
 class LeggedTask(VecTask):

@@ -13,6 +13,11 @@ by name, and logs each under its own name. The kinds (``METRIC_KINDS``):
   in eval.json, the mean over the envs of how each one's first episode ended (a task's success flag).
 * ``PER_STEP``: (num_envs,), each step, while ``evaluating`` (test mode); eval.json ``<name>``, the per-step values
   averaged over each env's first episode (the legged tasks' velocity tracking error).
+
+``success=True`` marks a metric that says how well the task meets its goal, higher being better: a success rate, IGE's
+consecutive successes, the terrain curriculum's level (the terrain tasks' target). ``save_best`` and sweeps follow the
+first such ``EPISODE_SUM`` or ``RUNNING`` metric (``sweep_metric=auto``, learning/best_checkpoint.py); a task without
+one is followed by its episode reward. A ``PER_STEP`` metric cannot be one (it is test mode's, often an error).
 """
 
 from __future__ import annotations
@@ -28,20 +33,25 @@ METRIC_KINDS = (EPISODE_SUM, RUNNING, OUTCOME, PER_STEP)
 
 @dataclass(frozen=True)
 class Metric:
-    """One metric a task reports: its name in the logs and its kind (module docstring)."""
+    """One metric a task reports: its name in the logs, its kind and whether it measures the task's success (module
+    docstring)."""
 
     name: str
     kind: str
+    success: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in METRIC_KINDS:
             raise ValueError(f"Metric {self.name!r}: kind {self.kind!r}; valid: {', '.join(METRIC_KINDS)}")
+        if self.success and self.kind == PER_STEP:
+            raise ValueError(f"Metric {self.name!r}: success=True needs a kind of {EPISODE_SUM}, {RUNNING} or "
+                             f"{OUTCOME}, not {PER_STEP}")
 
 
 # VecTask's, for a task with ``reports_success``: the rate over ended episodes (Episode/success) and each env's first
 # episode's success (eval.json "success").
-SUCCESS_RATE = Metric("success", EPISODE_SUM)
-SUCCESS = Metric("success", OUTCOME)
+SUCCESS_RATE = Metric("success", EPISODE_SUM, success=True)
+SUCCESS = Metric("success", OUTCOME, success=True)
 
 
 class TaskMetrics:
@@ -82,7 +92,7 @@ class TaskMetrics:
         return self._keys
 
     def evaluate(self, on: bool = True) -> None:
-        """Test mode (``learning/runner.evaluate``): the task records its ``PER_STEP`` metrics from now on."""
+        """Test mode (``learning/evaluation.evaluate``): the task records its ``PER_STEP`` metrics from now on."""
         self.evaluating = on
 
     def begin_step(self, replay: bool = False) -> None:

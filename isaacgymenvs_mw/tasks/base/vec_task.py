@@ -49,9 +49,8 @@ class VecTask(IGESurface):
     # True: the episodes that end by ``check_success`` are counted as successes, the metrics SUCCESS_RATE (logged as
     # Episode/success, the rate over ended episodes) and SUCCESS (test mode's eval "success", each env's first episode).
     reports_success: bool = False
-    # The history key that says how well the task is done when no declared metric does, e.g. "timeout_fraction" for a
-    # task whose goal is to last to the time limit: what a sweep compares and save_best follows (sweep_metric=auto).
-    # None: the first declared metric, else the episode reward.
+    # The history key of the task's success when it is a statistic of the run, not a declared metric: "timeout_fraction"
+    # for a task whose goal is to last to the time limit. None: the first Metric(success=True), else the episode reward.
     primary_metric: str | None = None
     # IsaacGymEnvs' names for the buffers of ``self.episode`` (tasks/base/episode.py), read and written by tasks.
     rew_buf, reset_buf, timeout_buf, progress_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
