@@ -14,13 +14,16 @@ run). For each it reports, from the moment the process was started:
   - ``timeline``: every other line the run printed (kernel progress, step compilation, ...) with its time.
 --compile_step_off measures the same again with ``+task.sim.compileStep=False`` (its own empty caches, then warm):
 an uncompiled step starts sooner and steps slower, and over ``--iterations`` the totals say which wins.
+--after_warmup also measures a start after ``python -m isaacgymenvs_mw.warmup`` (the same task, num_envs and device)
+filled empty caches of its own: the warm-up's seconds (``warmup_s``), then one run on what it left, whose
+``first_iteration_s`` is what a container image or cluster node prepared by the warm-up gives.
 --profile_dir DIR also runs each under cProfile (DIR/cold.prof, DIR/warm1.prof, ...) to break the start-up down;
 the profiler slows Python-heavy phases, so take the times above from a run without it.
 Prints one JSON object: ``summary`` (the headline seconds of every run), then each run in full. The caches live in
 a temporary folder unless --cache_dir names one.
 
   python benchmarks/cold_start.py --task Go1 [--num_envs 4096] [--sim_device cuda:0] [--warm_runs 2]
-                                  [--compile_step_off]
+                                  [--compile_step_off] [--after_warmup]
 """
 
 from __future__ import annotations
@@ -61,6 +64,36 @@ def phases(lines: list[str]) -> dict:
     return out
 
 
+def cache_env(cache: Path) -> dict[str, str]:
+    """The environment of a measured process: its Warp, Inductor and Triton caches in folders under ``cache``."""
+    return {**os.environ, "PYTHONUNBUFFERED": "1", "WARP_CACHE_PATH": str(cache / "warp"),
+            "TORCHINDUCTOR_CACHE_DIR": str(cache / "inductor"), "TRITON_CACHE_DIR": str(cache / "triton")}
+
+
+def timed_warmup(args: argparse.Namespace, cache: Path) -> dict:
+    """``python -m isaacgymenvs_mw.warmup`` for the measured task, on the caches under ``cache``: its seconds and
+    its lines (the Warp kernel line and the warm-up's own, which names what each cache gained)."""
+    cmd = [sys.executable, "-m", "isaacgymenvs_mw.warmup", f"task={args.task}", f"sim_device={args.sim_device}",
+           f"rl_device={args.sim_device}"]
+    if args.num_envs:
+        cmd.append(f"num_envs={args.num_envs}")
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, cwd=REPO_ROOT, env=cache_env(cache), capture_output=True, text=True)
+    lines = (proc.stdout + proc.stderr).splitlines()
+    out = {"warmup_s": time.perf_counter() - start, "returncode": proc.returncode,
+           "lines": [ln for ln in lines if ln.startswith(("[warmup]", "[isaacgymenvs_mw]"))]}
+    if proc.returncode != 0:
+        out["output_tail"] = lines[-30:]
+    return out
+
+
+def after_warmup(args: argparse.Namespace, cache: Path, runs: Path) -> dict:
+    """A warm-up on empty caches of its own, then one run on what it left."""
+    if cache.exists() and any(cache.iterdir()):
+        sys.exit(f"{cache} is not empty: the warm-up needs empty caches (--cache_dir)")
+    return {"warmup": timed_warmup(args, cache), "run": timed_run(args, cache, runs, "after_warmup")}
+
+
 def timed_run(args: argparse.Namespace, cache: Path, runs: Path, name: str, overrides: tuple[str, ...] = ()) -> dict:
     profile = ["-m", "cProfile", "-o", str(Path(args.profile_dir) / f"{name}.prof")] if args.profile_dir else []
     cmd = [sys.executable, *profile, str(REPO_ROOT / "train.py"), f"task={args.task}", f"max_iterations={args.iterations}",
@@ -68,12 +101,10 @@ def timed_run(args: argparse.Namespace, cache: Path, runs: Path, name: str, over
            *overrides]
     if args.num_envs:
         cmd.append(f"num_envs={args.num_envs}")
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "WARP_CACHE_PATH": str(cache / "warp"),
-           "TORCHINDUCTOR_CACHE_DIR": str(cache / "inductor"), "TRITON_CACHE_DIR": str(cache / "triton")}
     out: dict = {"task_built_s": None, "first_iteration_s": None, "timeline": []}
     lines = []
     start = time.perf_counter()
-    with subprocess.Popen(cmd, cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    with subprocess.Popen(cmd, cwd=REPO_ROOT, env=cache_env(cache), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                           text=True) as proc:
         for line in proc.stdout:
             now = time.perf_counter() - start
@@ -107,11 +138,15 @@ def cold_then_warm(args: argparse.Namespace, cache: Path, runs: Path, name: str,
 
 def headline(measured: dict) -> dict:
     """Seconds to the first iteration and of the whole run, per run, and where the step was compiled."""
-    keys = ("first_iteration_s", "total_s")
     rows = {"cold": measured["cold"], **{f"warm{i + 1}": run for i, run in enumerate(measured["warm"])}}
-    return {name: {**{k: None if run[k] is None else round(run[k], 1) for k in keys},
-                   "warp_kernels_s": run["phases"]["warp_kernels_s"], "step_compile_s": run["phases"]["step_compile_s"],
-                   "step_compiled": run["phases"]["step_compiled"]} for name, run in rows.items()}
+    return {name: headline_row(run) for name, run in rows.items()}
+
+
+def headline_row(run: dict) -> dict:
+    keys = ("first_iteration_s", "total_s")
+    return {**{k: None if run[k] is None else round(run[k], 1) for k in keys},
+            "warp_kernels_s": run["phases"]["warp_kernels_s"], "step_compile_s": run["phases"]["step_compile_s"],
+            "step_compiled": run["phases"]["step_compiled"]}
 
 
 def main() -> None:
@@ -123,6 +158,8 @@ def main() -> None:
     parser.add_argument("--warm_runs", type=int, default=1)
     parser.add_argument("--compile_step_off", action="store_true",
                         help=f"also measure the run with {COMPILE_STEP_OFF} (cold on its own empty caches, then warm)")
+    parser.add_argument("--after_warmup", action="store_true",
+                        help="also measure a run after python -m isaacgymenvs_mw.warmup filled empty caches of its own")
     parser.add_argument("--cache_dir", default="", help="where the fresh caches go (default: a temporary folder)")
     parser.add_argument("--profile_dir", default="", help="also profile each run with cProfile, files go here")
     args = parser.parse_args()
@@ -136,13 +173,19 @@ def main() -> None:
         # Its own caches: Warp's modules would otherwise be warm for the cold run without the compiled step.
         off = cold_then_warm(args, cache / "compile_step_off", runs, "compile_step_off", (COMPILE_STEP_OFF,)) \
             if args.compile_step_off else None
+        warmed = after_warmup(args, cache / "after_warmup", runs) if args.after_warmup else None
     summary = {"default": headline(default)}
     if off is not None:
         summary["compileStep=False"] = headline(off)
+    if warmed is not None:
+        summary["after_warmup"] = {"warmup_s": round(warmed["warmup"]["warmup_s"], 1),
+                                   **headline_row(warmed["run"])}
     result = {"task": args.task, "num_envs": args.num_envs or "task default", "sim_device": args.sim_device,
               "cpu_count": os.cpu_count(), "iterations": args.iterations, "summary": summary, **default}
     if off is not None:
         result["compile_step_off"] = off
+    if warmed is not None:
+        result["after_warmup"] = warmed
     print(json.dumps(result, indent=2))
 
 

@@ -59,12 +59,23 @@ def prepare(tmp: Path) -> None:
     (tmp / "run" / "model_12_interrupted.pt").write_bytes((tmp / "whole.pt").read_bytes()[:100])
 
 
-SCRIPTS = {"examples/deploy_mujoco.py": ("[deploy] error: ", "export_dir")}  # rows of another command: its prefix, key
+# Rows of another command (a script, or `-m module`): its error prefix and the key its rows name.
+SCRIPTS = {"examples/deploy_mujoco.py": ("[deploy] error: ", "export_dir"),
+           "-m isaacgymenvs_mw.warmup": ("[warmup] error: ", "task")}
+
+
+def command_of(args: str) -> str:
+    """The command a row runs: a script's path, ``-m <module>``, or train.py's overrides (then not in SCRIPTS)."""
+    argv = args.split()
+    return " ".join(argv[:2]) if argv[0] == "-m" else argv[0]
 
 
 def run_row(args: str, tmp: Path) -> subprocess.CompletedProcess:
     argv = args.replace("{tmp}", str(tmp)).split()
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    if argv[0] == "-m":  # this checkout's package, from the test's folder
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO_ROOT), env.get("PYTHONPATH")]))
+        return subprocess.run([sys.executable, *argv], cwd=tmp, capture_output=True, text=True, timeout=300, env=env)
     if argv[0] in SCRIPTS:
         return subprocess.run([sys.executable, str(REPO_ROOT / argv[0]), *argv[1:]], cwd=tmp, capture_output=True,
                               text=True, timeout=300, env=env)
@@ -93,7 +104,7 @@ def test_bad_input_is_one_line_naming_the_key(outcomes, args, message):
     out = proc.stdout + proc.stderr
     assert proc.returncode == 2, out[-3000:]
     assert "Traceback" not in out and "HYDRA_FULL_ERROR" not in out and "Error executing job" not in out, out
-    prefix, key = SCRIPTS.get(args.split()[0], ("[train] error: ", None))
+    prefix, key = SCRIPTS.get(command_of(args), ("[train] error: ", None))
     errors = [line for line in proc.stderr.splitlines() if line.startswith(prefix)]
     # {...}: what depends on the machine (its free memory), anything on one line
     expected = re.escape(prefix + message.replace("{tmp}", str(tmp))).replace(re.escape("{...}"), ".+?")

@@ -8,6 +8,7 @@ import os
 import signal
 import time
 from pathlib import Path
+from typing import Callable
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -56,28 +57,15 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     if not rl_games and not cfg.test and saved is not None:
         check_resume_total(max_iterations, saved, cfg.checkpoint)
 
-    task = _build_with_notice(cfg)
-    if rl_games:  # deferred: rl_games is an optional extra, imported only by its runs
-        from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
-
-        params = rl_games_params(cfg, task)
-        experiment = str(params["config"]["name"] or cfg.experiment or cfg.task_name)
-        max_iterations = int(params["config"].get("max_epochs", -1))
+    task = build_with_notice(cfg)
+    make_runner, experiment, epochs = learner(cfg, task, None if rl_games else train_cfg)
+    if rl_games:
+        max_iterations = epochs
         if max_iterations < 0:
             raise ConfigError(f"train.params.config.max_epochs={max_iterations} is invalid: give the iterations to "
                               "train (or max_iterations=N on the command line)")
         if not cfg.test and saved is not None:
             check_resume_total(max_iterations, {"iter": saved.get("iteration", saved.get("epoch", 0))}, cfg.checkpoint)
-        env = RlGamesVecEnv(task)
-
-        def make_runner():
-            return RlGamesRunner(env, params, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
-    else:
-        env = RslRlVecEnv(task)
-        experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
-
-        def make_runner():
-            return Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=cfg.get("verbose", False))
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     run_dir = Path(cfg.runs_dir) / experiment / stamp
     is_main = rank == 0
@@ -143,6 +131,24 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     return summary
 
 
+def learner(cfg: DictConfig, task, train_cfg: dict | None) -> tuple[Callable[[], TrainingRun], str, int]:
+    """The learner that trains ``task``: a function that makes its runner (with no log folder yet), the experiment
+    name, and rl_games' ``max_epochs`` (-1 for rsl-rl-lib). ``train_cfg``: rsl-rl-lib's runner config (from
+    ``rsl_rl_config``), or None for an rl_games train YAML."""
+    verbose = cfg.get("verbose", False)
+    if train_cfg is None:  # deferred: rl_games is an optional extra, imported only by its runs
+        from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
+
+        params = rl_games_params(cfg, task)
+        experiment = str(params["config"]["name"] or cfg.experiment or cfg.task_name)
+        games_env = RlGamesVecEnv(task)
+        return (lambda: RlGamesRunner(games_env, params, log_dir=None, device=task.rl_device, verbose=verbose),
+                experiment, int(params["config"].get("max_epochs", -1)))
+    env = RslRlVecEnv(task)
+    experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
+    return lambda: Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=verbose), experiment, -1
+
+
 def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start: tuple[int, int], started_at: float,
              run_dir: Path, interrupted: KeyboardInterrupt | None) -> dict:
     """What summary.json holds: the run's final metrics, throughput, learner health, device and versions. ``start``:
@@ -201,7 +207,7 @@ def _report_end(summary: dict, runner: TrainingRun, run_dir: Path, interrupted: 
 _MANY_CPU_WORLDS = 8192
 
 
-def _build_with_notice(cfg: DictConfig):
+def build_with_notice(cfg: DictConfig):
     """build_task, telling the user when it will be slow (many worlds on the CPU) and what it took when it was."""
     num_envs = cfg.num_envs if cfg.num_envs not in ("", None) else OmegaConf.select(
         cfg, "task.env.numEnvs", default=0, throw_on_resolution_failure=False)  # build_task reports a bad value

@@ -71,6 +71,13 @@ def init_warp(device: str) -> None:
         sys.stderr.flush()
 
 
+def kernel_cache_dir(device: str) -> str:
+    """The folder of Warp's kernel cache (``WARP_CACHE_PATH``, else Warp's default under the user's cache folder),
+    which Warp knows once it is initialised."""
+    init_warp(device)
+    return str(wp.config.kernel_cache_dir)
+
+
 def _record_launches(entry_points: Sequence[Callable[[], None]]) -> list[tuple[object, int | None]]:
     """Run ``entry_points`` with every kernel launch recorded instead of executed: (module, block_dim) pairs.
 

@@ -88,22 +88,23 @@ def _yaml_syntax_error(err: BaseException) -> str | None:
 
 
 @contextmanager
-def exit_on_input_error() -> Iterator[None]:
+def exit_on_input_error(command: str = "train") -> Iterator[None]:
     """Bad input raised inside becomes one line on stderr and exit status 2, a disk that refused a write one line
-    and exit status 74 (``DISK_ERROR_STATUS``); anything else passes on untouched.
-    train.py's job body runs inside it (Hydra would otherwise print "Error executing job" before the report)."""
+    and exit status 74 (``DISK_ERROR_STATUS``); anything else passes on untouched. The line starts with
+    ``[<command>] error:``. train.py's job body runs inside it (Hydra would otherwise print "Error executing job"
+    before the report)."""
     try:
         yield
     except DiskWriteError as err:  # the command was right, the disk was not: its own status (utils/files.py)
         if traceback_wanted():
             raise
-        print(f"[train] error: {err}", file=sys.stderr, flush=True)
+        print(f"[{command}] error: {err}", file=sys.stderr, flush=True)
         sys.exit(DISK_ERROR_STATUS)
     except Exception as err:
         message = input_error_message(err)
         if message is None or traceback_wanted():
             raise
-        print(f"[train] error: {message}", file=sys.stderr, flush=True)
+        print(f"[{command}] error: {message}", file=sys.stderr, flush=True)
         sys.exit(INPUT_ERROR_STATUS)
 
 

@@ -88,19 +88,25 @@ def with_learner_default(overrides: Sequence[str]) -> list[str]:
     return overrides
 
 
-def take_config_dirs(argv: Sequence[str]) -> list[str]:
-    """``argv`` without its ``--config-dir D`` / ``-cd D`` options, whose folders are searched before cfg/ from now on
-    in this process (Hydra would search them after it: see _register_user_config_first)."""
-    rest, args = [], list(argv)
+def split_config_dirs(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """The folders of ``argv``'s ``--config-dir D`` / ``-cd D`` options, and the rest of ``argv``."""
+    folders, rest, args = [], [], list(argv)
     while args:
         arg = args.pop(0)
         if arg in ("--config-dir", "-cd") and args:
-            folder = args.pop(0)
+            folders.append(args.pop(0))
         elif arg.startswith("--config-dir="):
-            folder = arg.split("=", 1)[1]
+            folders.append(arg.split("=", 1)[1])
         else:
             rest.append(arg)
-            continue
+    return folders, rest
+
+
+def take_config_dirs(argv: Sequence[str]) -> list[str]:
+    """``argv`` without its ``--config-dir D`` / ``-cd D`` options, whose folders are searched before cfg/ from now on
+    in this process (Hydra would search them after it: see _register_user_config_first)."""
+    folders, rest = split_config_dirs(argv)
+    for folder in folders:
         path = Path(folder).expanduser().resolve()
         if not path.is_dir():
             raise MissingFileError(f"--config-dir {folder}: no such folder ({path}); give the folder that holds your "

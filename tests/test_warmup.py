@@ -1,0 +1,99 @@
+"""``python -m isaacgymenvs_mw.warmup``: fills Warp's kernel cache for a task without training, so that a second
+warm-up (or a run) compiles nothing; writes no run folder; refuses an unknown task before building anything.
+
+Each command runs in a fresh process with its own empty Warp and Inductor cache folders (the machine's caches are
+neither used nor touched), from an empty working folder, so that anything it writes is seen.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import CPU_ARGS, REPO_ROOT
+
+from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.warmup import task_names
+
+LINE = re.compile(r"\[warmup\] Cartpole: warmed up in [\d.]+ s; WARP_CACHE_PATH=(\S+) \(\+(\d+) files\), "
+                  r"TORCHINDUCTOR_CACHE_DIR=(\S+) \(\+(\d+) files\), TRITON_CACHE_DIR=(\S+) \(\+(\d+) files\)")
+
+
+def warm_up(tmp: Path, *overrides: str) -> subprocess.CompletedProcess:
+    work = tmp / "work"
+    work.mkdir(exist_ok=True)
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", "WARP_CACHE_PATH": str(tmp / "warp"),
+           "TORCHINDUCTOR_CACHE_DIR": str(tmp / "inductor"),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT), os.environ.get("PYTHONPATH")]))}
+    env.pop("TRITON_CACHE_DIR", None)
+    return subprocess.run([sys.executable, "-m", "isaacgymenvs_mw.warmup", *CPU_ARGS, *overrides], cwd=work,
+                          capture_output=True, text=True, timeout=900, env=env)
+
+
+def files_under(path: Path) -> dict[str, int]:
+    """Every file under ``path`` with its modification time in ns: what a compile would add or rewrite."""
+    return {str(p.relative_to(path)): p.stat().st_mtime_ns for p in path.rglob("*") if p.is_file()}
+
+
+def test_warm_up_fills_warps_cache_once_and_writes_no_run(tmp_path):
+    first = warm_up(tmp_path, "task=Cartpole", "num_envs=4", f"runs_dir={tmp_path / 'runs'}")
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-3000:]
+    warp_cache = tmp_path / "warp"
+    filled = files_under(warp_cache)
+    assert filled, "the Warp cache is empty after a warm-up"
+    (line,) = [ln for ln in first.stdout.splitlines() if ln.startswith("[warmup] ")]
+    report = LINE.fullmatch(line)
+    assert report, line
+    # The folders it names are the ones the variables set (Triton's by default inside Inductor's), and Warp's count
+    # is what the folder gained: all of it, the folder having been empty.
+    assert Path(report[1]).parent == warp_cache and int(report[2]) == len(filled)
+    assert report[3] == str(tmp_path / "inductor") and report[5] == str(tmp_path / "inductor" / "triton")
+    # Every module the step uses was compiled, none read back (Warp's own account, sim/kernels.py's line).
+    kernels = re.search(r"Warp kernels on cpu: (\d+) modules ready in [\d.]+ s \((\d+) compiled on", first.stdout)
+    assert kernels and kernels[1] == kernels[2], first.stdout
+    # Nothing but the caches: no run folder (runs_dir is not even created), nothing in the working folder.
+    assert not (tmp_path / "runs").exists()
+    assert list((tmp_path / "work").iterdir()) == []
+
+    # Again, and with another number of worlds (Warp's modules do not depend on it): nothing compiled, nothing
+    # rewritten, every module read back from the cache.
+    for num_envs in (4, 6):
+        again = warm_up(tmp_path, "task=Cartpole", f"num_envs={num_envs}", f"runs_dir={tmp_path / 'runs'}")
+        assert again.returncode == 0, again.stderr[-3000:]
+        assert files_under(warp_cache) == filled
+        assert "(all from the cache" in again.stdout, again.stdout
+        assert LINE.search(again.stdout)[2] == "0", again.stdout
+    assert not (tmp_path / "runs").exists() and list((tmp_path / "work").iterdir()) == []
+
+
+def test_an_unknown_task_stops_the_warm_up_before_any_task_is_built(tmp_path):
+    # Cartpole comes first in the list, but nothing of it is compiled: every name is checked before the first build.
+    proc = warm_up(tmp_path, "task=Cartpole,Nope", "num_envs=4")
+    assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    (error,) = proc.stderr.splitlines()
+    assert error.startswith("[warmup] error: task=Nope: no task/Nope.yaml in the config search path; available: ")
+    assert "Cartpole, CartpoleCamera" in error
+    assert not (tmp_path / "warp").exists() or files_under(tmp_path / "warp") == {}
+
+
+@pytest.mark.parametrize("overrides, names, rest", [
+    (["task=Go1,FrankaCabinet", "num_envs=8"], ["Go1", "FrankaCabinet"], ["num_envs=8"]),
+    (["task=Ant", "seed=1", "task=Go1, Go1 ,Ant"], ["Go1", "Ant"], ["seed=1"]),  # Hydra's last value; once each
+])
+def test_task_names_are_read_from_the_last_task_override(overrides, names, rest):
+    assert task_names(overrides) == (names, rest)
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["num_envs=4"], "task is missing: give task=Name[,Name...], e.g. task=Go1,FrankaCabinet"),
+    (["task=,"], "task=',' names no task: give task=Name[,Name...], e.g. task=Go1,FrankaCabinet"),
+])
+def test_no_task_name_is_refused(overrides, message):
+    with pytest.raises(ConfigError) as err:
+        task_names(overrides)
+    assert str(err.value) == message
