@@ -56,11 +56,15 @@ SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.
                   "BallBalance": ["task.env.episodeLength_s=0.4"]}  # 40 policy steps of 0.01 s
 
 
+# The recording's default that a later default replaced: FrankaCubeStack's reward became the staged one (issue 58).
+FORMER_DEFAULTS = {"FrankaCubeStack": ["task.env.reward.kind=isaacgymenvs"]}
+
+
 def _make(task: str):
     from isaacgymenvs_mw import make
 
     overrides = SMALL_MAP if task.endswith("Terrain") else []
-    overrides = [*overrides, *SHORT_EPISODES.get(task, SHORT_EPISODES["legged"])]
+    overrides = [*overrides, *SHORT_EPISODES.get(task, SHORT_EPISODES["legged"]), *FORMER_DEFAULTS.get(task, [])]
     if task == "Pendulum":
         overrides = [*overrides, "task_module=examples.pendulum_task"]
     return make(task, num_envs=NUM_ENVS, sim_device="cpu", rl_device="cpu", seed=SEED, overrides=overrides)

@@ -1,7 +1,8 @@
-"""FrankaCubeStack (issue 32): IsaacGymEnvs' reward against a numpy transcription of its formula written here, the
-stack success on placed cubes (stacked and released, stacked but held, 3 cm off), resets (cubes on the table, far
-enough apart, within the noise), the two control types (targets and torques), the gripper, the observation against
-MuJoCo C, env.contact in the model, one-line errors, and one training iteration plus test mode on the CPU."""
+"""FrankaCubeStack (issue 32): IsaacGymEnvs' reward (``env.reward.kind: isaacgymenvs``) against a numpy transcription
+of its formula written here, its stack success on placed cubes (stacked and released, stacked but held, 3 cm off),
+resets (cubes on the table, far enough apart, within the noise), the two control types (targets and torques), the
+gripper, the observation against MuJoCo C, env.contact in the model, one-line errors, and one training iteration
+plus test mode on the CPU. The staged reward, the default: tests/test_franka_cube_stack_staged.py."""
 
 from __future__ import annotations
 
@@ -83,7 +84,9 @@ def test_reward_terms_equal_the_reference_formula_on_constructed_states():
 
 @pytest.fixture(scope="module")
 def env():
-    return make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True)
+    # IsaacGymEnvs' reward, whose success and 16 these tests check (the staged default: test_franka_cube_stack_staged)
+    return make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True,
+                overrides=["task.env.reward.kind=isaacgymenvs"])
 
 
 def place(env, a, b, q_arm=None):

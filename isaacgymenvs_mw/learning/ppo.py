@@ -28,8 +28,8 @@ from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
 from tensordict import TensorDict
 
-from isaacgymenvs_mw.learning.train_config import GRAD_CLIP_SCOPES, KL_FORMS, KL_SCHEDULES, one_of
-from isaacgymenvs_mw.utils.config import boolean, real_number
+from isaacgymenvs_mw.learning.train_config import GRAD_CLIP_SCOPES, KL_FORMS, KL_SCHEDULES
+from isaacgymenvs_mw.utils.config import boolean, one_of, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants (bounds: the defaults)

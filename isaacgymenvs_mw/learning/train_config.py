@@ -5,7 +5,8 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.rl_games_config import check_rl_games_config, is_rl_games_config
-from isaacgymenvs_mw.utils.config import boolean, check_run_config, checkpoint_path, real_number, to_dict, whole_number
+from isaacgymenvs_mw.utils.config import (boolean, check_run_config, checkpoint_path, one_of, real_number, to_dict,
+                                          whole_number)
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")  # the train YAML's sections, as OnPolicyRunner reads them
@@ -14,13 +15,6 @@ TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")  # the train YAML's 
 KL_SCHEDULES = ("per_mini_batch", "per_epoch")
 KL_FORMS = ("rsl_rl", "rl_games")
 GRAD_CLIP_SCOPES = ("per_network", "global")
-
-
-def one_of(value, key: str, choices: tuple[str, ...]) -> str:
-    """``value`` if it is one of ``choices``; anything else fails naming ``key`` and the choices."""
-    if not isinstance(value, str) or value not in choices:
-        raise ConfigError(f"{key}={value!r} is invalid: choose one of {list(choices)}")
-    return value
 
 
 # Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.

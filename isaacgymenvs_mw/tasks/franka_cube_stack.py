@@ -2,9 +2,18 @@
 
 The scene (``cfg/task/FrankaCubeStack.yaml``): the Panda (``env.asset``) at the world origin, which is its base
 frame; a table (``env.assets.table``) whose top is 0.1 m below the base with its centre 0.45 m in front (+x); the
-two cubes (``env.assets.cubeA`` / ``cubeB``), free bodies placed at every reset. The episode ends when A sits on B
-with the gripper away from it (a success, reported as ``success``; the learner bootstraps it like a time-out,
-VecTask.check_success) or at the time limit.
+two cubes (``env.assets.cubeA`` / ``cubeB``), free bodies placed at every reset. The episode ends when A is stacked
+(a success, reported as ``success``; the learner bootstraps it like a time-out, VecTask.check_success) or at the time
+limit.
+
+Reward (``env.reward.kind``):
+  * ``staged`` (default): one stage at a time, after ManiSkill's StackCube: reach A, grasp it, lift it clear of B,
+    carry it over B, place it on B, release it (``staged_stack_reward``). Each stage pays within its own band, above
+    every earlier one; the most, once A is stacked: on B, the gripper open, A at rest. That ends the episode, and the
+    learner's bootstrap values it as that reward paid on every later step.
+  * ``isaacgymenvs``: IsaacGymEnvs' reward (``cube_stack_terms``: approach, lifted, aligned, and 16 on the step A
+    is on B with the grasp point 4 cm away from it, which ends the episode), plus this project's grasp shaping
+    (``graspRewardScale``, ``liftHeightRewardScale``; 0 gives IGE's reward exactly).
 
 Control (``env.controlType``):
   * ``joint_pos`` (default): the 7 arm servo targets move by ``actionScale x control dt x a`` per step, clamped to
@@ -32,11 +41,13 @@ import math
 import torch
 
 from isaacgymenvs_mw.sim.dynamics import SiteDynamics
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, Metric
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import (
     CUBE_A_SIZE,
+    OPEN,
     TABLE_CENTRE_XY,
     TABLE_TOP,
     FrankaArm,
@@ -48,11 +59,12 @@ from isaacgymenvs_mw.tasks.franka import (
     noisy_start_pose,
     privileged_terms,
 )
-from isaacgymenvs_mw.utils.config import boolean
+from isaacgymenvs_mw.utils.config import boolean, one_of
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw, wrap_to_pi
 
 CONTROL_TYPES = ("joint_pos", "joint_tor", "osc")
+REWARD_KINDS = ("staged", "isaacgymenvs")  # env.reward.kind; the YAML's default is the first
 TORQUE_CONTROL = ("joint_tor", "osc")  # the arm's actuators are torque motors
 # env keys of the task YAML that are plain numbers
 _NUMBER_KEYS = ("actionScale", "frankaDofNoise", "startPositionNoise", "startRotationNoise")
@@ -68,6 +80,23 @@ CUBE_B_SIZE = 0.07  # edge length (m), assets/mjcf/cube_7cm.xml (A's, CUBE_A_SIZ
 MIN_CUBE_DISTANCE = 2.0 * (CUBE_A_SIZE + CUBE_B_SIZE) * math.sqrt(2.0) / 2.0
 CANDIDATES = 32  # draws for A per reset; the first far enough from B is taken (all 32 too close: p < 1e-13)
 
+# The staged reward's stages, in order, and the least each pays (its band: this ... this + 1; "stacked" pays its
+# level alone). ManiSkill's StackCube pays 0-2 reaching, 4-5 grasped, 6-7 on B and 8 once stacked; the grasp is split
+# here into lifting, carrying over B and placing, so that each motion has its own gradient. Divided by STACKED_LEVEL:
+# the reward per step is 0 ... 1.
+STAGES = ("reach", "grasp", "carry", "place", "release", "stacked")
+STAGE_LEVELS = (0.0, 2.0, 3.0, 4.0, 6.0, 8.0)
+STACKED = STAGES.index("stacked")
+STACKED_LEVEL = STAGE_LEVELS[STACKED]
+STACK_XY_TOLERANCE = 0.02  # A's centre within this of B's in xy (m), IGE's tolerance
+STACK_Z_TOLERANCE = 0.01   # A's centre within this of its height resting on B (m); above it by more: A clears B
+HOVER = 0.03               # carry's aim: A's centre this far above its place on B (m)
+RELEASED_OPENING = 0.035   # each finger opened at least this (m): both pads 1 cm clear of A's faces, A centred
+# A at rest: slower than these (m/s, rad/s), ManiSkill's StackCube (its is_static thresholds)
+STILL_LIN_VEL, STILL_ANG_VEL = 0.01, 0.5
+# Training logs the furthest stage the episodes reached (0 reach ... 5 stacked), averaged over those that ended.
+FURTHEST_STAGE = Metric("furthest_stage", EPISODE_SUM)
+
 
 class FrankaCubeStack(VecTask):
     """Observation: cube A's orientation and position, B - A, the grasp frame's position and orientation, and the
@@ -78,7 +107,9 @@ class FrankaCubeStack(VecTask):
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
         env = cfg["env"]
-        missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) + ("startDofPos",) if k not in env]
+        self.reward_kind = one_of((env.get("reward") or {}).get("kind"), "env.reward.kind", REWARD_KINDS)
+        ige_scales = tuple(REWARD_SCALE_KEYS.values()) if self.reward_kind == "isaacgymenvs" else ()
+        missing = [k for k in _NUMBER_KEYS + ige_scales + ("startDofPos",) if k not in env]
         if missing:
             raise ConfigError(f"FrankaCubeStack: the task YAML's env section lacks {missing}")
         self.control_type = control_type(env.get("controlType", "joint_pos"))
@@ -98,11 +129,15 @@ class FrankaCubeStack(VecTask):
         self.torque_limit = torch.tensor(m.actuator_forcerange[:7, 1], dtype=torch.float32, device=self.device)
         self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1 (joint_pos)
         self.table_centre = torch.tensor([*TABLE_CENTRE_XY], device=self.device)
-        scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
-        scales.update({t: float(env.get(k, 0.0)) for t, k in SHAPING_SCALE_KEYS.items()})
+        if self.reward_kind == "staged":
+            scales = {"staged": 1.0}  # one term, already within 0 ... 1
+        else:
+            scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
+            scales.update({t: float(env.get(k, 0.0)) for t, k in SHAPING_SCALE_KEYS.items()})
         self.rewards = RewardTerms(self, scales, self.num_envs,
                                    self.device, key="env")
         self.terms: dict[str, torch.Tensor] = {}
+        self.furthest_stage = torch.zeros(self.num_envs, device=self.device)  # this episode's, staged reward
         if self.control_type == "osc":
             self._init_osc(env)
         self.build_observation_layouts()
@@ -147,17 +182,33 @@ class FrankaCubeStack(VecTask):
     def refresh_state(self) -> None:
         """The quantities the reward terms and the success test share, once per step."""
         grasp = self.arm.grasp_pos()
+        if self.reward_kind == "staged":
+            reward, stage = staged_stack_reward(self.cube_a.root_pos, self.cube_b.root_pos, grasp,
+                                                self.sim.dof_pos[:, 7], self.cube_a.root_lin_vel,
+                                                self.cube_a.root_ang_vel)
+            self.terms = {"staged": reward, "stacked": stage == STACKED}
+            torch.maximum(self.furthest_stage, stage.float(), out=self.furthest_stage)
+            return
         self.terms = cube_stack_terms(self.cube_a.root_pos, self.cube_b.root_pos, grasp, *fingertips(self.arm))
         self.terms.update(grasp_terms(self.cube_a.root_pos, grasp, self.sim.dof_pos[:, 7]))
 
     def check_success(self) -> torch.Tensor:
-        # A on B, released (IGE's end condition): the episode ends, bootstrapped (see VecTask.check_success)
+        # A stacked: the episode ends, bootstrapped (see VecTask.check_success). Staged: A on B, the gripper open,
+        # A at rest; isaacgymenvs: IGE's end condition, A on B with the grasp point 4 cm away from its centre.
         return self.terms["stacked"]
+
+    def declared_metrics(self) -> list[Metric]:
+        return [*super().declared_metrics(), *([FURTHEST_STAGE] if self.reward_kind == "staged" else [])]
 
     def compute_reward(self) -> None:
         self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf)
 
-    # Reward terms (IsaacGymEnvs' formula): stack replaces the other three on the step it succeeds.
+    def _reward_staged(self) -> torch.Tensor:
+        # env.reward.kind staged: the furthest stage that holds now pays, within its band (staged_stack_reward)
+        return self.terms["staged"]
+
+    # Reward terms of env.reward.kind isaacgymenvs (IGE's formula): stack replaces the other three on the step it
+    # succeeds.
     def _reward_dist(self) -> torch.Tensor:
         # approach: 1 - tanh(10 x mean distance of A to grasp point and fingertips), at least the align term
         return self.terms["dist"] * ~self.terms["stacked"]
@@ -207,6 +258,9 @@ class FrankaCubeStack(VecTask):
     # ------------------------------------------------------------------ reset
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
+        if self.reward_kind == "staged":  # the ending episodes' furthest stage, then a new count
+            self.metrics.record(FURTHEST_STAGE, torch.where(mask, self.furthest_stage, 0.0).sum())
+            self.furthest_stage.masked_fill_(mask, 0.0)
         dof_pos = noisy_start_pose(self.start_dof_pos, self.env_numbers["frankaDofNoise"], self.arm, n)
         self.sim.reset_worlds(mask)
         self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
@@ -224,9 +278,7 @@ class FrankaCubeStack(VecTask):
 
 def control_type(value: object) -> str:
     """``env.controlType``, checked: one of CONTROL_TYPES."""
-    if value not in CONTROL_TYPES:
-        raise ConfigError(f"env.controlType={value!r} is invalid: choose one of {list(CONTROL_TYPES)}")
-    return str(value)
+    return one_of(value, "env.controlType", CONTROL_TYPES)
 
 
 def sample_cubes(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float,
@@ -265,6 +317,59 @@ def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Te
     on_top = torch.abs(height_a - CUBE_B_SIZE - CUBE_A_SIZE / 2.0) < 0.02
     released = d > 0.04
     return {"dist": dist, "lifted": lifted, "align": align, "stacked": aligned_xy & on_top & released}
+
+
+def staged_stack_reward(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Tensor,
+                        finger_opening: torch.Tensor, lin_vel_a: torch.Tensor, ang_vel_a: torch.Tensor,
+                        table_top: float = TABLE_TOP) -> tuple[torch.Tensor, torch.Tensor]:
+    """The staged reward (``env.reward.kind: staged``): (reward (N,) in 0 ... 1, stage (N,) long, an index of STAGES).
+
+    Inputs: positions (N, 3) of cube A, cube B and the grasp point, each finger's opening (N,; m) and cube A's
+    linear and angular velocity (N, 3; m/s, rad/s). A's place is its centre resting on B, (A + B) / 2 above B's
+    centre; A is clear of B when its centre is more than STACK_Z_TOLERANCE above that height (its bottom above B's
+    top), and over B when also within STACK_XY_TOLERANCE of B in xy. The stage is the furthest that holds; it pays
+    its STAGE_LEVELS value plus its progress (0 ... 1), all / STACKED_LEVEL:
+
+      reach    A not held:                    1 - tanh(5 |grasp point - A|)
+      grasp    A held (franka.grasp_terms):   A's rise from the table toward clearing B, 0 ... 1
+      carry    held and clear of B:           1 - tanh(5 |A - HOVER above its place|)
+      place    held, clear and over B:        1 - tanh(5 |A - its place|)
+      release  A on B (over B, within STACK_Z_TOLERANCE of its place), held or not:
+               (how far the fingers opened beyond A's faces, 0 ... 1, + 1 - tanh(10 |v_A| + |w_A|)) / 2
+      stacked  on B, each finger opened RELEASED_OPENING or more, A still (|v_A|, |w_A| under STILL_LIN_VEL,
+               STILL_ANG_VEL): nothing more; it is the success (the episode ends)
+    """
+    offset = torch.zeros_like(cube_a)
+    offset[:, 2] = (CUBE_A_SIZE + CUBE_B_SIZE) / 2.0
+    place = cube_b + offset
+    over_xy = torch.linalg.norm((cube_a - place)[:, :2], dim=-1) < STACK_XY_TOLERANCE
+    above_place = cube_a[:, 2] - place[:, 2]
+    clear = above_place > STACK_Z_TOLERANCE
+    on_b = over_xy & (above_place.abs() <= STACK_Z_TOLERANCE)
+    held = grasp_terms(cube_a, grasp, finger_opening, table_top)["held"] > 0.0
+    speed, spin = torch.linalg.norm(lin_vel_a, dim=-1), torch.linalg.norm(ang_vel_a, dim=-1)
+    stacked = on_b & (finger_opening >= RELEASED_OPENING) & (speed < STILL_LIN_VEL) & (spin < STILL_ANG_VEL)
+
+    def closeness(target: torch.Tensor) -> torch.Tensor:
+        return 1.0 - torch.tanh(5.0 * torch.linalg.norm(target - cube_a, dim=-1))
+
+    rest_height = table_top + CUBE_A_SIZE / 2.0  # A's centre resting on the table
+    clear_height = place[:, 2] + STACK_Z_TOLERANCE
+    # B knocked off the table could put the clear height below the rest height: the rise then counts as complete
+    rise = (cube_a[:, 2] - rest_height) / torch.clamp(clear_height - rest_height, min=1e-3)
+    hover = place.clone()
+    hover[:, 2] += HOVER
+    opened = torch.clamp((finger_opening - CUBE_A_SIZE / 2.0) / (OPEN - CUBE_A_SIZE / 2.0), 0.0, 1.0)
+    at_rest = 1.0 - torch.tanh(10.0 * speed + spin)
+    # each stage from reach on: whether it holds, and its progress
+    stages = ((torch.ones_like(held), closeness(grasp)), (held, torch.clamp(rise, 0.0, 1.0)),
+              (held & clear, closeness(hover)), (held & clear & over_xy, closeness(place)),
+              (on_b, (opened + at_rest) / 2.0), (stacked, torch.zeros_like(speed)))
+    reward, stage = torch.zeros_like(speed), torch.zeros_like(speed, dtype=torch.long)
+    for index, ((reached, progress), level) in enumerate(zip(stages, STAGE_LEVELS)):
+        reward = torch.where(reached, level + progress, reward)
+        stage = torch.where(reached, index, stage)
+    return reward / STACKED_LEVEL, stage
 
 
 def osc_torques(pose_error: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, q_rest: torch.Tensor,

@@ -221,6 +221,13 @@ def real_number(value, key: str, low: float | None = None, high: float | None = 
     return float(value)
 
 
+def one_of(value, key: str, choices: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``choices``; anything else fails naming ``key`` and the choices."""
+    if not isinstance(value, str) or value not in choices:
+        raise ConfigError(f"{key}={value!r} is invalid: choose one of {list(choices)}")
+    return value
+
+
 def boolean(value, key: str) -> bool:
     """``value`` if it is True or False; anything else (1, 'yes', '') fails naming ``key``."""
     if not isinstance(value, bool):

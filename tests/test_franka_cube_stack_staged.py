@@ -1,0 +1,174 @@
+"""FrankaCubeStack's staged reward, the default (issue 58): the reward function against a plain-Python formula written
+here, on random and hand-built states (the stages pay in order: stacked and released > stacked but held > lifted >
+grasped > reached); the success on placed cubes in the simulator (A on B, gripper open, A at rest); an episode that
+ends stacked, counted as a success with its furthest stage; the one-line error of an unknown reward kind; and a short
+CPU training run that logs the success rate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from isaacgymenvs_mw import make
+from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME
+from isaacgymenvs_mw.tasks.franka_cube_stack import staged_stack_reward
+from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+TABLE_TOP = -0.1  # assets/mjcf/table.xml
+Q0 = np.array([0.0, 0.1963, 0.0, -2.6180, 0.0, 2.9416, 0.7854, 0.04, 0.04])  # IGE's arm pose, the gripper open
+
+
+def reference_staged(a, b, g, opening, v, w):
+    """The staged reward of one env, as docs/config.md states it: (reward, stage name)."""
+    def norm(x):
+        return math.sqrt(sum(c * c for c in x))
+
+    place = [b[0], b[1], b[2] + 0.06]  # A's centre resting on B: (0.05 + 0.07) / 2 above B's
+    off_xy = norm([a[0] - place[0], a[1] - place[1]])
+    rise_over_place = a[2] - place[2]
+    held = norm([a[i] - g[i] for i in range(3)]) < 0.03 and opening < 0.03
+    on_b = off_xy < 0.02 and abs(rise_over_place) <= 0.01
+    if on_b and opening >= 0.035 and norm(v) < 0.01 and norm(w) < 0.5:
+        return 1.0, "stacked"
+    if on_b:
+        opened = min(max((opening - 0.025) / 0.015, 0.0), 1.0)
+        return (6.0 + (opened + 1.0 - math.tanh(10.0 * norm(v) + norm(w))) / 2.0) / 8.0, "release"
+    if held and rise_over_place > 0.01 and off_xy < 0.02:
+        return (5.0 - math.tanh(5.0 * norm([place[i] - a[i] for i in range(3)]))) / 8.0, "place"
+    if held and rise_over_place > 0.01:
+        hover = [place[0], place[1], place[2] + 0.03]
+        return (4.0 - math.tanh(5.0 * norm([hover[i] - a[i] for i in range(3)]))) / 8.0, "carry"
+    if held:
+        rest = TABLE_TOP + 0.025
+        rise = (a[2] - rest) / (place[2] + 0.01 - rest)
+        return (2.0 + min(max(rise, 0.0), 1.0)) / 8.0, "grasp"
+    return (1.0 - math.tanh(5.0 * norm([g[i] - a[i] for i in range(3)]))) / 8.0, "reach"
+
+
+STAGE_NAMES = ["reach", "grasp", "carry", "place", "release", "stacked"]
+
+
+def staged(a, b, g, opening, v, w):
+    t = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)
+    reward, stage = staged_stack_reward(t(a), t(b), t(g), t(opening), t(v), t(w))
+    return reward.numpy(), [STAGE_NAMES[i] for i in stage.tolist()]
+
+
+def test_staged_reward_equals_the_reference_formula_in_every_stage():
+    rng = np.random.default_rng(3)
+    n, k = 1800, 300
+    b = np.column_stack([0.45 + rng.uniform(-0.25, 0.25, n), rng.uniform(-0.25, 0.25, n), np.full(n, -0.065)])
+    place = b + [0.0, 0.0, 0.06]
+    a = b + [0.2, 0.0, -0.01] + rng.normal(0.0, 0.02, (n, 3))  # on the table beside B
+    a[k:2 * k, 2] = rng.uniform(TABLE_TOP + 0.025, 0.1, k)             # lifted, anywhere in height
+    a[2 * k:3 * k] = place[2 * k:3 * k] + rng.normal(0.0, 0.03, (k, 3))  # near its place: over B, on B or off
+    a[3 * k:4 * k] = place[3 * k:4 * k] + np.column_stack([rng.uniform(-0.015, 0.015, (k, 2)),
+                                                           rng.uniform(0.0, 0.1, k)])  # above its place
+    a[4 * k:] = place[4 * k:] + rng.uniform(-0.012, 0.012, (n - 4 * k, 3)) * [2.0, 2.0, 1.0]  # on B or nearly
+    g = a + rng.normal(0.0, 0.02, (n, 3)) * rng.choice([0.3, 3.0], (n, 1))  # near A or not
+    opening = rng.choice([0.0, 0.025, 0.03, 0.035, 0.04], n) + rng.uniform(-0.002, 0.002, n)
+    v = rng.normal(0.0, 0.01, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))
+    w = rng.normal(0.0, 0.4, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))
+    reward, stage = staged(a, b, g, opening, v, w)
+    expected = [reference_staged(*row) for row in zip(a, b, g, opening, v, w)]
+    assert stage == [s for _, s in expected]
+    np.testing.assert_allclose(reward, [r for r, _ in expected], atol=1e-12)
+    counts = {name: stage.count(name) for name in STAGE_NAMES}
+    assert min(counts.values()) >= 20, counts  # every stage is exercised
+    assert reward.min() >= 0.0 and reward.max() <= 1.0
+    assert np.all((reward == 1.0) == (np.array(stage) == "stacked"))  # only a stack pays the most
+
+
+def test_stages_pay_in_order_on_hand_built_states():
+    b = [0.45, -0.1, TABLE_TOP + 0.035]
+    on_table = [0.45, 0.1, TABLE_TOP + 0.025]
+    lifted = [0.45, 0.1, TABLE_TOP + 0.15]
+    on_b = [0.45, -0.1, TABLE_TOP + 0.095]
+    still, moving = [0.0, 0.0, 0.0], [0.03, 0.0, 0.0]
+    states = {  # name: A, grasp point, each finger's opening, A's velocity
+        "reached": (on_table, on_table, 0.04, still),          # the open gripper around A
+        "grasped": (on_table, on_table, 0.025, still),         # closed on it
+        "lifted": (lifted, lifted, 0.025, still),              # held 12.5 cm above the table, away from B
+        "stacked, held": (on_b, on_b, 0.025, still),
+        "stacked, released, moving": (on_b, on_b, 0.04, moving),
+        "stacked, released": (on_b, on_b, 0.04, still),
+    }
+    a, g, opening, v = (np.array([s[i] for s in states.values()]) for i in range(4))
+    reward, stage = staged(a, np.tile(b, (len(states), 1)), g, opening, v, np.zeros_like(v))
+    assert stage == ["reach", "grasp", "carry", "release", "release", "stacked"]
+    assert list(reward) == sorted(reward) and len(set(reward)) == len(reward), dict(zip(states, reward))
+    assert reward[-1] == 1.0 and reward[-2] < 7.0 / 8.0
+
+
+@pytest.fixture(scope="module")
+def env():
+    return make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True, seed=0)
+
+
+def place(env, a, b, q, lin_vel=None):
+    """Write cubes A and B (yaw 0; A's linear velocity ``lin_vel``, else at rest) and the arm's joints ``q`` (N, 9)
+    into every env, then refresh the state the reward reads."""
+    n = env.num_envs
+    mask = torch.ones(n, dtype=torch.bool)
+    quat, zero = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1), torch.zeros(n, 3)
+    vel_a = zero if lin_vel is None else torch.tensor(lin_vel, dtype=torch.float32)
+    for name, pos, vel in (("cubeA", a, vel_a), ("cubeB", b, zero)):
+        env.sim.write_state(mask, root_pos=torch.tensor(pos, dtype=torch.float32), root_quat=quat,
+                            root_lin_vel=vel, root_ang_vel=zero, asset=name, refresh=False)
+    env.arm.reset(mask, torch.tensor(q, dtype=torch.float32))
+    env.sim.refresh_kinematics()
+    env.refresh_state()
+
+
+def test_success_needs_a_on_b_the_gripper_open_and_a_at_rest(env):
+    from test_franka_grasp import ik
+
+    b = np.array([0.45, 0.0, TABLE_TOP + 0.035])
+    on_b = b + [0.0, 0.0, 0.06]
+    m = env.sim.mj_model
+    holding = np.concatenate([ik(m, m.site("grasp").id, on_b, Q0[:7]), [0.025, 0.025]])  # grasp point at A
+    place(env, np.tile(on_b, (3, 1)), np.tile(b, (3, 1)), np.stack([Q0, Q0, holding]),
+          lin_vel=[[0, 0, 0], [0.05, 0, 0], [0, 0, 0]])  # env 1: A sliding at 5 cm/s
+    assert env.check_success().tolist() == [True, False, False]
+    env.compute_reward()
+    assert env.rew_buf[0].item() == 1.0
+    assert 6.0 / 8.0 <= env.rew_buf[1].item() < 7.0 / 8.0 and 6.0 / 8.0 <= env.rew_buf[2].item() < 7.0 / 8.0
+
+
+def test_an_episode_ends_stacked_and_reports_success_and_its_furthest_stage(env):
+    env.reset()
+    b = np.array([0.45, 0.0, TABLE_TOP + 0.035])
+    a = np.stack([b + [0, 0, 0.06], b + [0, 0.2, -0.01], b + [0, -0.2, -0.01]])  # env 0 on B, 1-2 on the table
+    place(env, a, np.tile(b, (3, 1)), np.tile(Q0, (3, 1)))
+    open_still = torch.tensor([[0.0] * 7 + [1.0]] * 3)  # hold the arm, gripper open
+    for _ in range(20):  # A, written just touching B, sinks into the soft contact and settles (6 steps measured)
+        _, rew, done, _ = env.step(open_still)
+        if done[0]:
+            break
+    assert done.tolist() == [1, 0, 0]
+    assert rew[0].item() == 1.0 and rew[1].item() < 1.0 / 8.0  # env 1: reaching, the gripper far from A
+    assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0, 0.0, 0.0]
+    ended = env.metrics.recorded(EPISODE_SUM)
+    assert ended["success"].item() == 1.0 and ended["furthest_stage"].item() == 5.0  # STAGES.index("stacked")
+
+
+def test_an_unknown_reward_kind_is_one_line_naming_the_key_and_the_kinds():
+    with pytest.raises(ConfigError, match=r"^task\.env\.reward\.kind='dense' is invalid: choose one of "
+                                          r"\['staged', 'isaacgymenvs'\]$"):
+        make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+             overrides=["task.env.reward.kind=dense"])
+
+
+def test_training_a_few_iterations_logs_the_success_rate_and_furthest_stage(tmp_path, run_args):
+    cfg = compose_config(["task=FrankaCubeStack", "num_envs=4", "max_iterations=3", "task.env.episodeLength_s=0.1",
+                          "train.runner.num_steps_per_env=8", *run_args])
+    summary = run(cfg)
+    assert summary["iterations"] == 3
+    assert summary["success"] == 0.0  # 6-step episodes of a new policy: none stacked
+    assert 0.0 <= summary["furthest_stage"] < 5.0  # the mean over the episodes that ended
+    assert 0.0 <= summary["mean_episode_reward"] <= 6.0  # at most 1 per step, 6 steps
