@@ -3,7 +3,7 @@
 A graph break makes the compiled step several graphs with Python between them, each a return to the host (slower),
 and the step cannot be compiled ahead, alongside Warp's kernels (StepExecution). Breaks do not depend on the device,
 so they are found here on the CPU with a few envs, by tracing the step with torch._dynamo.explain (no code generation:
-seconds per task); benchmarks/check_graph_breaks.py prints where a step breaks.
+seconds per task); benchmarks/diagnostics/check_graph_breaks.py prints where a step breaks.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "diagnostics"))
 from check_graph_breaks import TASKS, break_lines, explain_step  # noqa: E402
 
 
