@@ -33,7 +33,7 @@ def test_test_mode_metrics_add_no_outputs_to_the_step(task):
     # Metrics are copied into buffers that exist before the step (TaskMetrics), so the test-mode step is the training
     # step's graph with more writes, not more outputs. On the GPU, Quadcopter's captured test mode lost a fifth of
     # its episodes, and only with its test-mode metrics recorded; their extra graph outputs were the one difference
-    # found in its compiled step (docs/PERFORMANCE.md, twentieth session).
+    # found in its compiled step (4 x H200, 2026-11-26).
     training, testing = explain_step(task, num_envs=4), explain_step(task, num_envs=4, evaluating=True)
     assert testing.graph_count == 1
     assert _output_count(testing) == _output_count(training)

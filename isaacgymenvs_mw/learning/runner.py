@@ -42,7 +42,7 @@ from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested  # noqa: F401
 
 # An action whose noise std is below this while the KL-adaptive rate sits at its floor has collapsed: moving its mean
 # by 0.18 std (0.0018 here, under a thousandth of the [-1, 1] range) already spends a KL target of 0.016, so every
-# update stops there and the other actions barely learn (ShadowHand's wrist, docs/PERFORMANCE.md).
+# update stops there and the other actions barely learn (ShadowHand's wrist, H100, 2026-11-26).
 NOISE_COLLAPSE_STD = 0.01
 
 
@@ -176,7 +176,7 @@ class Runner(OnPolicyRunner, TrainingRun):
     def _action_noise(self) -> dict[str, float]:
         """The policy's action noise as its parameters hold it after the update: the mean and the smallest standard
         deviation over the actions. The smallest is the one to watch: a few collapsed actions pin the KL-adaptive rate
-        at its floor (ShadowHand, docs/PERFORMANCE.md). One small read; empty for a policy without a state-independent
+        at its floor (ShadowHand, H100, 2026-11-26). One small read; empty for a policy without a state-independent
         Gaussian (rsl-rl-lib's GaussianDistribution and ours keep ``std_param`` or ``log_std_param``)."""
         distribution = getattr(self.alg.get_policy(), "distribution", None)
         with torch.no_grad():
@@ -206,7 +206,7 @@ class Runner(OnPolicyRunner, TrainingRun):
 
     def _noise_lever(self) -> str:
         """The override to try first against a collapse: the noise learned as a log (on AllegroHand no action's noise
-        collapsed with it in two seeds, docs/PERFORMANCE.md), or, for a policy that has it already, a floor."""
+        collapsed with it in two seeds, H200, 2026-11-26), or, for a policy that has it already, a floor."""
         std_type = (self.cfg["actor"].get("distribution_cfg") or {}).get("std_type", "scalar")  # actor: checked
         if std_type == "log":
             return "+train.actor.distribution_cfg.std_range=[0.1,10.0]"
