@@ -1,4 +1,4 @@
-"""benchmarks/check_step_graph.py's twin comparison, on the CPU: its GPU verdicts rest on two helpers, one that gives
+"""benchmarks/diagnostics/check_step_graph.py's twin comparison, on the CPU: its GPU verdicts rest on two helpers, one that gives
 the eager twin the shipped twin's whole state before a step and one that lists the task tensors a step left
 different. Reference: two eager Cartpoles, one of which is made to forget a tensor its step must update."""
 
@@ -11,7 +11,7 @@ import torch
 
 import isaacgymenvs_mw
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "diagnostics"))
 import check_step_graph  # noqa: E402  (a script beside the tests, not a package)
 
 

@@ -223,7 +223,7 @@ def test_observed_sensors_are_checked_when_the_task_is_built():
 
 # ------------------------------------------------------------------------------------- a sensor of the user's own
 class BaseSpeed(Sensor):
-    """docs/porting.md's computed sensor: the base's horizontal speed, refreshed by the sense phase."""
+    """docs/contributing.md's computed sensor: the base's horizontal speed, refreshed by the sense phase."""
 
     name = "base_speed"
 

@@ -4,7 +4,7 @@ throughput benchmark relies on.
 
 The reference for the compiled step is the eager step of a second task in the same state with the same random
 streams: torch.compile (Inductor, here generating C++ for the CPU) must change how the step runs, not what it
-computes. On the GPU the same graph is generated as Triton kernels (benchmarks/check_step_graph.py checks that).
+computes. On the GPU the same graph is generated as Triton kernels (benchmarks/diagnostics/check_step_graph.py checks that).
 Compiling ahead (during the first reset, while Warp's kernel modules compile on their threads) must change only when
 the compilation happens: the same tensors bit for bit, nothing run or drawn by the compilation itself.
 """

@@ -10,7 +10,7 @@ arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/test_ppo.py 
 
 Without host reads the update is still thousands of small kernel launches from Python (the policy networks are
 small, so launching costs more than computing). The whole update, all-reduces included, is therefore recorded once
-as a CUDA graph and replayed (``capture_update``), which makes Go1's update 5x faster on a GPU (docs/PERFORMANCE.md).
+as a CUDA graph and replayed (``capture_update``), which makes Go1's update 5x faster on a GPU (docs/BENCHMARKS.md).
 
 rl_games' value normalisation (``normalize_value``, off by default) is a learner option here: the critic learns values
 in units of running return statistics, the rollout and GAE stay in real units (``ValueNormalizer``).

@@ -279,7 +279,7 @@ def cpu_threads(value) -> int:
     """The run key ``cpu_threads`` as a thread count: a whole number >= 1, or ``auto`` for all cores.
 
     One thread is the default: torch's OpenMP threads wait for each other by spinning, so beside one other busy
-    process on 2 cores Cartpole trained at 15 k env-steps/s with two threads and 67 k with one (docs/PERFORMANCE.md)."""
+    process on 2 cores Cartpole trained at 15 k env-steps/s with two threads and 67 k with one (docs/BENCHMARKS.md)."""
     if isinstance(value, str) and value.strip().lower() == "auto":
         return os.cpu_count() or 1
     if isinstance(value, str) and value.strip().isdigit():

@@ -9,8 +9,8 @@ poses the tasks read (xpos), the observation and privileged state the task compu
 defence caught: worlds reset for a blow-up, observations/rewards replaced, optimiser steps skipped, learner states
 restored, and whether every value loss and weight stayed finite.
 
-  python benchmarks/nan_injection.py --sim_device cuda:0 --num_envs 4096 --iterations 60
-  python benchmarks/nan_injection.py --sim_device cpu --num_envs 64 --iterations 6          (the CPU reference)
+  python benchmarks/diagnostics/nan_injection.py --sim_device cuda:0 --num_envs 4096 --iterations 60
+  python benchmarks/diagnostics/nan_injection.py --sim_device cpu --num_envs 64 --iterations 6          (the CPU reference)
 
 Prints one JSON object.
 """

@@ -5,8 +5,8 @@ task in training mode (curriculum on, envs starting at levels 0..maxInitLevel) a
 each reset. Comparing task settings with the same policy shows what the settings do to the curriculum without
 training anything, e.g. heading commands against random yaw rates:
 
-  python benchmarks/curriculum_moves.py --policy <run>/exported/policy.pt --num_envs 128
-  python benchmarks/curriculum_moves.py --policy <run>/exported/policy.pt --num_envs 128 \\
+  python benchmarks/diagnostics/curriculum_moves.py --policy <run>/exported/policy.pt --num_envs 128
+  python benchmarks/diagnostics/curriculum_moves.py --policy <run>/exported/policy.pt --num_envs 128 \\
       --override "~task.env.commands.heading"
 """
 

@@ -7,10 +7,10 @@
 #     line in OUTDIR/TASK.CACHE.eval.txt);
 # OVERRIDES="k=v ..." adds Hydra overrides to the training and the test run (say so wherever the numbers go).
 # THROUGHPUT=1 also runs the flat/terrain throughput pair at 4096 envs and the no-sync check on terrain.
-# Usage: bash benchmarks/gpu_terrain.sh TASK cold|warm OUTDIR [LIMIT_S]
+# Usage: bash benchmarks/rounds/gpu_terrain.sh TASK cold|warm OUTDIR [LIMIT_S]
 # OUTDIR/done appears when everything is written. A 600-second run does not fit one device call with its
 # evaluation: start it detached (setsid; a job merely sent to the background ends with the call) and wait in the next:
-#   call 1: THROUGHPUT=1 setsid nohup bash benchmarks/gpu_terrain.sh AnymalTerrain warm /tmp/t 600 > /tmp/t.log 2>&1 < /dev/null &
+#   call 1: THROUGHPUT=1 setsid nohup bash benchmarks/rounds/gpu_terrain.sh AnymalTerrain warm /tmp/t 600 > /tmp/t.log 2>&1 < /dev/null &
 #   call 2: while [ ! -f /tmp/t/done ]; do sleep 10; done; cat /tmp/t.log
 set -uo pipefail
 task=$1; cache=$2; out=$3; limit=${4:-580}
@@ -60,8 +60,8 @@ ckpt=$(ls -t "$run_dir"/model_[0-9]*.pt 2>/dev/null | head -1)
 if [ "${THROUGHPUT:-0}" = 1 ]; then
   flat=${task%Terrain}
   for t in "$flat" "$task"; do
-    python3 "$here/throughput.py" --task "$t" --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/throughput.jsonl" \
+    python3 "$here/../throughput.py" --task "$t" --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/throughput.jsonl" \
       | cut -c1-330
   done
-  python3 "$here/check_no_sync.py" --task "$task" --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/nosync.jsonl"
+  python3 "$here/../diagnostics/check_no_sync.py" --task "$task" --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/nosync.jsonl"
 fi

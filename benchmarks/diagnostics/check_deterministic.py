@@ -3,9 +3,9 @@ and compares the per-iteration histories of their summary.json: losses, learning
 Timings are left out. Prints one JSON object: identical (bool), the first differing iteration and keys, and the
 largest relative difference of the losses.
 
-  python benchmarks/check_deterministic.py --task Go1 --iterations 20                  # deterministic=True
-  python benchmarks/check_deterministic.py --task Go1 --iterations 20 --off            # the same, mode off
-  python benchmarks/check_deterministic.py --task Cartpole --num_envs 64 --iterations 20 sim_device=cpu rl_device=cpu
+  python benchmarks/diagnostics/check_deterministic.py --task Go1 --iterations 20                  # deterministic=True
+  python benchmarks/diagnostics/check_deterministic.py --task Go1 --iterations 20 --off            # the same, mode off
+  python benchmarks/diagnostics/check_deterministic.py --task Cartpole --num_envs 64 --iterations 20 sim_device=cpu rl_device=cpu
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TIMING_KEYS = {"time_s", "steps_per_s", "collect_s", "learn_s"}
 
 

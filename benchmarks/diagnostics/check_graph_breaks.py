@@ -7,8 +7,8 @@ runs one step's pre-physics and physics phases as VecTask.step does, and traces 
 ``torch._dynamo.explain`` (tracing only, no Inductor code generation: seconds per task). Prints, per task, the number
 of graphs and each break's reason with its source line; exits 1 when a task's step is not one graph.
 
-  python benchmarks/check_graph_breaks.py Quadcopter BallBalance [--num_envs 4]
-  python benchmarks/check_graph_breaks.py            # the tasks listed in TASKS
+  python benchmarks/diagnostics/check_graph_breaks.py Quadcopter BallBalance [--num_envs 4]
+  python benchmarks/diagnostics/check_graph_breaks.py            # the tasks listed in TASKS
 """
 
 from __future__ import annotations

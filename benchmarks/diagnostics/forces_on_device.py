@@ -1,6 +1,6 @@
 """apply_body_forces on a CUDA device (captured graphs) against the same calls on Warp's CPU device.
 
-    python benchmarks/forces_on_device.py [--device cuda:0]
+    python benchmarks/diagnostics/forces_on_device.py [--device cuda:0]
 
 The CPU path is checked against MuJoCo C by tests/test_body_forces.py; this runs the same sequence of env steps
 on both devices and prints the largest qpos difference after each, as JSON. It covers what the CPU cannot: the
@@ -21,7 +21,7 @@ import torch
 from isaacgymenvs_mw.sim import Simulator
 
 # The model tests/test_body_forces.py checks against MuJoCo C.
-XML = (Path(__file__).resolve().parents[1] / "tests" / "assets" / "free_box_and_hinge.xml").read_text()
+XML = (Path(__file__).resolve().parents[2] / "tests" / "assets" / "free_box_and_hinge.xml").read_text()
 N, SUBSTEPS = 64, 3
 
 

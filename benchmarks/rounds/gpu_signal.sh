@@ -3,7 +3,7 @@
 # Trains TASK with the shipped defaults, sends SIGTERM after AFTER_S seconds, and reports the exit status, the stop
 # line, the interrupted checkpoint and summary.json (expected at any time after the first iteration; before it, the
 # one-line "no checkpoint exists yet" and status 143).
-# Usage: bash benchmarks/gpu_signal.sh TASK AFTER_S OUTDIR [overrides...]
+# Usage: bash benchmarks/rounds/gpu_signal.sh TASK AFTER_S OUTDIR [overrides...]
 # CACHE=cold empties Warp's kernel cache and the compiled step's Inductor/Triton caches first (each lane should have
 # its own WARP_CACHE_PATH / TORCHINDUCTOR_CACHE_DIR / TRITON_CACHE_DIR when several run at once).
 set -uo pipefail

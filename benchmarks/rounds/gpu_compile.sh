@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# On a GPU machine: the throughput table of docs/PERFORMANCE.md, with the compiled step (sim.compileStep, the
-# default) and, for the legged tasks at 4096 envs, without it. Usage: bash benchmarks/gpu_compile.sh OUTDIR
+# On a GPU machine: the throughput table of docs/BENCHMARKS.md, with the compiled step (sim.compileStep, the
+# default) and, for the legged tasks at 4096 envs, without it. Usage: bash benchmarks/rounds/gpu_compile.sh OUTDIR
 set -uo pipefail
 out=$1; mkdir -p "$out"
 python3 -c "import torch, triton; print('torch', torch.__version__, 'triton', triton.__version__)"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # On a GPU machine: Cartpole time-to-criterion with a cold and a warm Warp kernel cache, then throughput.
-# Usage: bash benchmarks/gpu_cartpole.sh OUTDIR
+# Usage: bash benchmarks/rounds/gpu_cartpole.sh OUTDIR
 set -uo pipefail
 out=$1; mkdir -p "$out"
 for cache in cold warm; do

@@ -13,8 +13,8 @@ check_deterministic.py says whether two trainings differ; this says in which par
 
 Prints one JSON object. Run on the GPU (the CPU device runs Warp kernels serially and is deterministic):
 
-  python benchmarks/determinism_bisect.py --task Go1 --sim_device cuda:0               # deterministic=True
-  python benchmarks/determinism_bisect.py --task Go1 --sim_device cuda:0 --off         # the mode off
+  python benchmarks/diagnostics/determinism_bisect.py --task Go1 --sim_device cuda:0               # deterministic=True
+  python benchmarks/diagnostics/determinism_bisect.py --task Go1 --sim_device cuda:0 --off         # the mode off
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 # per GPU, evaluates each job's last checkpoint in test mode (sweep_eval=True) and writes sweep.md / sweep.json /
 # sweep.png under OUTDIR/sweeps/. Each job ends at its training budget (max_train_time_s, start-up not counted) or
 # at its task's max_iterations, whichever comes first.
-# Usage: bash benchmarks/gpu_learning.sh NAME OUTDIR
+# Usage: bash benchmarks/rounds/gpu_learning.sh NAME OUTDIR
 #   lift      FrankaCubeLift, seeds 1-4, 300 s of training each (target: test success >= 0.90 in 4 of 4,
 #             final >= 0.95 x best)
 #   lift_novn the same without value normalisation (ablation: the shipped recipe has it)
@@ -37,7 +37,7 @@
 # SEEDS=1,2 and BUDGET=600 (training seconds) replace a sweep's seeds and budget; CUDA_VISIBLE_DEVICES=2,3 keeps it
 # to those GPUs, so two sweeps can share a 4-GPU machine.
 # A budget over one device call (10 minutes) runs detached and is waited for in the next call:
-#   call 1: setsid nohup bash benchmarks/gpu_learning.sh stack /tmp/l > /tmp/l.log 2>&1 &
+#   call 1: setsid nohup bash benchmarks/rounds/gpu_learning.sh stack /tmp/l > /tmp/l.log 2>&1 &
 #   call 2: while [ ! -f /tmp/l/done ]; do sleep 10; done; cat /tmp/l/sweeps/*/sweep.md
 set -uo pipefail
 name=$1; out=$2

@@ -11,7 +11,7 @@
 #   throughput  rows (a) physics, (b) VecTask.step, (c) training at 4096 and 8192 envs: (b)/(a) >= 0.9 asked;
 #   all         the four in order (needs about 15 minutes: for a machine without the 600 s limit).
 # Acceptance (issue 14): train wall_time_s <= 600, eval timeout_fraction >= 0.95, lin_vel_tracking_error <= 0.3.
-# Usage: bash benchmarks/gpu_g1.sh OUTDIR warmup|train|eval|throughput|all [extra train.py overrides...]
+# Usage: bash benchmarks/rounds/gpu_g1.sh OUTDIR warmup|train|eval|throughput|all [extra train.py overrides...]
 set -uo pipefail
 out=$1; phase=$2; shift 2
 here=$(dirname "$0")
@@ -56,7 +56,7 @@ ok = e["timeout_fraction"] >= 0.95 and e.get("lin_vel_tracking_error", 9.0) <= 0
 print(json.dumps({"timeout_fraction": e["timeout_fraction"], "lin_vel_tracking_error": e.get("lin_vel_tracking_error"),
                   "episodes": e["episodes"], "meets_issue_14": ok}))
 PY
-  python3 "$here/learning_curve.py" "${run}summary.json" --length --out "$out/g1_learning_curve.png" 2>&1 | tail -1
+  python3 "$here/../learning_curve.py" "${run}summary.json" --length --out "$out/g1_learning_curve.png" 2>&1 | tail -1
   # A separate small test run records the video (env 0), so the 1024-env numbers above are not slowed by rendering.
   timeout 240 python3 train.py task="$task" headless=True test=True checkpoint="$ckpt" num_envs=16 capture_video=True \
     capture_video_len=250 capture_video_freq=100000 "$@" > "$out/$task.video.log" 2>&1
@@ -66,7 +66,7 @@ PY
 
 throughput() {
   for n in 4096 8192; do
-    timeout 280 python3 "$here/throughput.py" --task "$task" --num_envs $n 2>/dev/null | tail -1 \
+    timeout 280 python3 "$here/../throughput.py" --task "$task" --num_envs $n 2>/dev/null | tail -1 \
       | tee -a "$out/throughput.jsonl" | cut -c1-400
   done
 }

@@ -2,10 +2,10 @@
 # On a GPU machine: train several runs of one task side by side on one GPU, then evaluate each on 1024 envs.
 # For robustness across seeds and for screening settings; wall clocks of side-by-side runs are not times to a
 # policy (the runs share the GPU): take those from gpu_policy.sh.
-# Usage: bash benchmarks/gpu_seeds.sh TASK OUTDIR "seed=1" "seed=2 task.env.x=y" ...   (one run per argument)
+# Usage: bash benchmarks/rounds/gpu_seeds.sh TASK OUTDIR "seed=1" "seed=2 task.env.x=y" ...   (one run per argument)
 # TRAIN_LIMIT_S (default 560) caps each training run. OUTDIR/done appears when everything is written, so a batch
 # longer than one device call can run detached and be waited for in the next call:
-#   call 1: TRAIN_LIMIT_S=900 setsid nohup bash benchmarks/gpu_seeds.sh Anymal /tmp/s "seed=1" ... > /tmp/s.log 2>&1 &
+#   call 1: TRAIN_LIMIT_S=900 setsid nohup bash benchmarks/rounds/gpu_seeds.sh Anymal /tmp/s "seed=1" ... > /tmp/s.log 2>&1 &
 #   call 2: while [ ! -f /tmp/s/done ]; do sleep 10; done; cat /tmp/s/evals.txt
 set -uo pipefail
 task=$1; out=$2; shift 2

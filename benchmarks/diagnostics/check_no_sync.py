@@ -7,7 +7,7 @@ SyncFreePPO, every mini-batch step of the PPO update (forward, backward, learnin
 host work (overflow poll every `sim.overflowCheckInterval` steps, episode statistics and the update's loss read
 once per iteration) is outside that window by construction. Prints one JSON line; exits 1 on a sync.
 
-  python benchmarks/check_no_sync.py --task Anymal --num_envs 4096 [--randomization full]
+  python benchmarks/diagnostics/check_no_sync.py --task Anymal --num_envs 4096 [--randomization full]
 
 ``--randomization full`` (benchmarks/randomization_presets.py) checks the step with every randomised quantity drawn
 at each reset, an action delay, noise, pushes and the torque-speed limit.
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 import traceback
 
 import torch
@@ -26,7 +27,10 @@ from isaacgymenvs_mw.learning.launch import build_task
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
-from randomization_presets import apply as apply_randomization
+
+# randomization_presets.py is a user benchmark's helper one folder up, beside throughput.py.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from randomization_presets import apply as apply_randomization  # noqa: E402
 
 
 def check(task_name: str, num_envs: int, steps: int, randomization: str = "shipped") -> dict:

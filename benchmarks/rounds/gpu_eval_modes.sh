@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # On one GPU: one checkpoint evaluated in test mode under each step execution (shipped: compiled and captured; compiled
 # only; eager), one eval line each. The three must agree within the sampling noise of the test episodes; a gap points
-# at the step's graphs (benchmarks/check_step_graph.py then finds the step that differs).
-# Usage: bash benchmarks/gpu_eval_modes.sh TASK CHECKPOINT [NUM_ENVS]
+# at the step's graphs (benchmarks/diagnostics/check_step_graph.py then finds the step that differs).
+# Usage: bash benchmarks/rounds/gpu_eval_modes.sh TASK CHECKPOINT [NUM_ENVS]
 set -uo pipefail
 task=$1; checkpoint=$2; envs=${3:-}
 for mode in shipped "+task.sim.captureStep=False" "+task.sim.captureStep=False +task.sim.compileStep=False"; do

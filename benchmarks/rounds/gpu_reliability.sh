@@ -3,11 +3,11 @@
 #   phase A: GPU 0, 1: FrankaCubeLift seeds 1 and 2, 1500 iterations (shipped defaults), then test mode on 1024 envs;
 #            GPU 2: FrankaCubeStack, GPU 3: FrankaCubeLiftDepth, each signalled at 60 s (cold caches) and at 300 s.
 #   phase B: GPU 0: FrankaCubeLift signalled at 60 s (cold) and 300 s; GPU 1: the blow-up injection on FrankaCubeLift
-#            (benchmarks/nan_injection.py, 4096 envs); GPU 2, 3: throughput of Go1 and FrankaCubeLift, this tree and
+#            (benchmarks/diagnostics/nan_injection.py, 4096 envs); GPU 2, 3: throughput of Go1 and FrankaCubeLift, this tree and
 #            the one in BASE (a copy of the previous commit), one after the other on the same GPU.
 #   phase C: throughput against BASE on an idle machine; signals while the step compiles; a late one.
 #   phase D: phase C cut to 2 GPUs.
-# Usage: bash benchmarks/gpu_reliability.sh A|B|C|D OUTDIR   (BASE=.base for phases B and C)
+# Usage: bash benchmarks/rounds/gpu_reliability.sh A|B|C|D OUTDIR   (BASE=.base for phases B and C)
 set -uo pipefail
 phase=$1; out=$2
 mkdir -p "$out"
@@ -41,8 +41,8 @@ print({k: s.get(k) for k in ('final_iteration', 'wall_time_s', 'env_steps_per_s'
 if [ "$phase" = A ]; then
   lane 0 train_and_test FrankaCubeLift 1
   lane 1 train_and_test FrankaCubeLift 2
-  lane 2 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeStack 300 $out"
-  lane 3 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 300 $out"
+  lane 2 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeStack 60 $out; bash benchmarks/rounds/gpu_signal.sh FrankaCubeStack 300 $out"
+  lane 3 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeLiftDepth 60 $out; bash benchmarks/rounds/gpu_signal.sh FrankaCubeLiftDepth 300 $out"
 elif [ "$phase" = C ]; then
   # Throughput of this tree against BASE on an otherwise idle machine, side by side on the four GPUs, twice with
   # the GPUs swapped; then the signals that land while the step compiles (cold caches) and one late in a long run.
@@ -51,20 +51,20 @@ elif [ "$phase" = C ]; then
     (CUDA_VISIBLE_DEVICES=$((2 + swap)) tp Go1 new) & (cd "$base" && CUDA_VISIBLE_DEVICES=$((3 - swap)) PYTHONPATH=/tmp/site:$PWD tp Go1 base) &
     wait
   done | tee "$out/throughput.txt"
-  lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out"
-  lane 1 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 50 $out/b"
-  lane 2 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLiftDepth 60 $out"
-  lane 3 bash -c "bash benchmarks/gpu_signal.sh FrankaCubeLift 300 $out max_iterations=3000"
+  lane 0 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeStack 60 $out"
+  lane 1 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeStack 50 $out/b"
+  lane 2 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeLiftDepth 60 $out"
+  lane 3 bash -c "bash benchmarks/rounds/gpu_signal.sh FrankaCubeLift 300 $out max_iterations=3000"
 elif [ "$phase" = D ]; then
   # Phase C on a machine with 2 GPUs: one throughput pair per task (this tree and BASE side by side, the GPUs
   # swapped between the tasks), then FrankaCubeStack signalled while its step compiles and FrankaCubeLift late.
   { (CUDA_VISIBLE_DEVICES=0 tp FrankaCubeLift new) & (cd "$base" && CUDA_VISIBLE_DEVICES=1 PYTHONPATH=/tmp/site:$PWD tp FrankaCubeLift base) & wait
     (CUDA_VISIBLE_DEVICES=1 tp Go1 new) & (cd "$base" && CUDA_VISIBLE_DEVICES=0 PYTHONPATH=/tmp/site:$PWD tp Go1 base) & wait; } | tee "$out/throughput.txt"
-  lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeStack 60 $out"
-  lane 1 bash -c "bash benchmarks/gpu_signal.sh FrankaCubeLift 240 $out max_iterations=3000"
+  lane 0 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeStack 60 $out"
+  lane 1 bash -c "bash benchmarks/rounds/gpu_signal.sh FrankaCubeLift 240 $out max_iterations=3000"
 else
-  lane 0 bash -c "CACHE=cold bash benchmarks/gpu_signal.sh FrankaCubeLift 60 $out; bash benchmarks/gpu_signal.sh FrankaCubeLift 300 $out"
-  lane 1 python3 benchmarks/nan_injection.py --sim_device cuda:0 --num_envs 4096 --iterations 120
+  lane 0 bash -c "CACHE=cold bash benchmarks/rounds/gpu_signal.sh FrankaCubeLift 60 $out; bash benchmarks/rounds/gpu_signal.sh FrankaCubeLift 300 $out"
+  lane 1 python3 benchmarks/diagnostics/nan_injection.py --sim_device cuda:0 --num_envs 4096 --iterations 120
   lane 2 bash -c "tp Go1 new; cd $base && PYTHONPATH=/tmp/site:\$PWD tp Go1 base"
   lane 3 bash -c "tp FrankaCubeLift new; cd $base && PYTHONPATH=/tmp/site:\$PWD tp FrankaCubeLift base"
 fi

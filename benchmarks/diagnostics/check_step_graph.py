@@ -19,8 +19,8 @@ other does not is a mismatch (a captured step whose replays lost them). Compiled
 (``torch._inductor.config.fallback_random``), so both twins reset to the same states. Prints one JSON line; exits 1
 on a mismatch.
 
-  python benchmarks/check_step_graph.py --task Go1 --num_envs 1024 --steps 60 [--randomization fixed]
-  python benchmarks/check_step_graph.py --task FrankaCubeLift --device cpu --num_envs 8   # compiled vs eager, no graphs
+  python benchmarks/diagnostics/check_step_graph.py --task Go1 --num_envs 1024 --steps 60 [--randomization fixed]
+  python benchmarks/diagnostics/check_step_graph.py --task FrankaCubeLift --device cpu --num_envs 8   # compiled vs eager, no graphs
 
 ``--randomization fixed`` (benchmarks/randomization_presets.py) runs both with every randomised quantity drawn at
 each reset as a single value, a one-step action delay and the torque-speed limit: the same numbers for both
@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import torch
 import torch._inductor.config
@@ -39,7 +40,10 @@ import torch._inductor.config
 from isaacgymenvs_mw.learning.launch import build_task
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING
 from isaacgymenvs_mw.utils.config import compose_config
-from randomization_presets import apply as apply_randomization
+
+# randomization_presets.py is a user benchmark's helper one folder up, beside throughput.py.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from randomization_presets import apply as apply_randomization  # noqa: E402
 
 DETERMINISTIC = [
     "task.env.resetDofPosScale=[1.0,1.0]",

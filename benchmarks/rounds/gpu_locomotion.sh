@@ -5,7 +5,7 @@
 #      start to end, start-up included) and the history for the learning curve;
 #   3. test mode on 1024 envs (eval.json: forward_speed in m/s, timeout_fraction, mean episode length);
 #   4. the learning curve PNG per task, and throughput rows (a), (b), (c) at 4096 and 8192 envs.
-# Usage: [TASKS="Ant"] bash benchmarks/gpu_locomotion.sh OUTDIR [extra train.py overrides for both tasks...]
+# Usage: [TASKS="Ant"] bash benchmarks/rounds/gpu_locomotion.sh OUTDIR [extra train.py overrides for both tasks...]
 # (TASKS picks the tasks, default "Ant Humanoid"; one task per call fits the device tool's 600-s calls)
 set -uo pipefail
 out=$1; shift
@@ -28,15 +28,15 @@ for task in ${TASKS:-Ant Humanoid}; do
     | grep "\[eval\] {" | cut -c1-300
   cp "${run}summary.json" "$out/$task.summary.json"
   cp "$(dirname "$ckpt")/eval.json" "$out/$task.eval.json" 2>/dev/null
-  python3 "$here/learning_curve.py" "${run}summary.json" --length --out "$out/${task,,}_learning_curve.png"
+  python3 "$here/../learning_curve.py" "${run}summary.json" --length --out "$out/${task,,}_learning_curve.png"
   for n in 4096 8192; do
-    python3 "$here/throughput.py" --task $task --num_envs $n 2>/dev/null | tail -1 \
+    python3 "$here/../throughput.py" --task $task --num_envs $n 2>/dev/null | tail -1 \
       | tee -a "$out/throughput.jsonl" | cut -c1-330
   done
 done
 for task in ${TASKS:-Ant Humanoid}; do
-  python3 "$here/check_no_sync.py" --task $task --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/nosync.jsonl"
+  python3 "$here/../diagnostics/check_no_sync.py" --task $task --num_envs 4096 2>/dev/null | tail -1 | tee -a "$out/nosync.jsonl"
 done
 # compiled+captured step vs eager step; Ant (no falls, hence no randomly drawn resets, within 60 small-action steps)
-[[ " ${TASKS:-Ant} " == *" Ant "* ]] && python3 "$here/check_step_graph.py" --task Ant --num_envs 1024 --steps 60 2>/dev/null | tail -1 \
+[[ " ${TASKS:-Ant} " == *" Ant "* ]] && python3 "$here/../diagnostics/check_step_graph.py" --task Ant --num_envs 1024 --steps 60 2>/dev/null | tail -1 \
   | tee -a "$out/step_graph.jsonl"
