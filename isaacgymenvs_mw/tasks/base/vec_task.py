@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, sim_dt
-from isaacgymenvs_mw.sim.stability import BlowupLog
+from isaacgymenvs_mw.sim.blowup import BlowupLog
 from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
 from isaacgymenvs_mw.tasks.base.display import Display
 from isaacgymenvs_mw.tasks.base.env_keys import episode_length, joint_velocity_clamp, task_settings
