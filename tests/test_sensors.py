@@ -179,7 +179,7 @@ def test_legged_imu_equals_mujoco_c_in_the_air_and_on_the_ground(go1):
                                        err_msg=f"world {w}, {'in the air' if airborne else 'standing'}")
         # The gyro is the base's angular velocity in its own frame, which is MuJoCo's free-joint qvel[3:6].
         np.testing.assert_allclose(imu[:, 3:].double().numpy(), state[1][:, 3:6], atol=1e-5)
-        feet = sim.contact_forces(go1.feet).norm(dim=-1).amax(dim=1)
+        feet = torch.stack([sim.sensor(f"contact_{foot}") for foot in go1.feet], 1).norm(dim=-1).amax(dim=1)
         if airborne:  # proper acceleration: a body in free fall reads far less than gravity
             assert float(feet.max()) == 0.0 and float(imu[:, :3].norm(dim=1).max()) < 9.81 * 0.95
         else:  # standing: the feet push the base up, and it reads that push along its up axis
@@ -188,13 +188,17 @@ def test_legged_imu_equals_mujoco_c_in_the_air_and_on_the_ground(go1):
 
 def test_contact_forces_sensor_is_a_view_of_the_contact_sensors(go1):
     forces = go1.sim.sensor("contact_forces")
-    bodies = list(go1.sim.contact_sensors)
+    bodies = go1.sim.sensors.get("contact_forces").bodies
     assert forces.shape == (WORLDS, len(bodies), 3)
     assert forces.untyped_storage().data_ptr() == go1.sim.sensordata.untyped_storage().data_ptr()  # no copy
     go1.reset()
     go1.step(torch.zeros(WORLDS, 12))
     assert float(forces.norm(dim=-1).max()) > 1.0  # the feet stand
-    torch.testing.assert_close(forces, go1.sim.contact_forces(bodies), rtol=0, atol=0)
+    # Body by body, the columns MuJoCo gives each body's contact sensor (net force: 3 values).
+    m = go1.sim.mj_model
+    columns = [go1.sim.sensordata[:, m.sensor(f"contact_{b}").adr[0]:][:, :3] for b in bodies]
+    assert all(int(m.sensor(f"contact_{b}").dim[0]) == 3 for b in bodies)
+    torch.testing.assert_close(forces, torch.stack(columns, dim=1), rtol=0, atol=0)
 
 
 def test_legged_imu_observation_term_has_its_size_scale_and_values(go1):
@@ -223,7 +227,8 @@ def test_observed_sensors_are_checked_when_the_task_is_built():
 
 # ------------------------------------------------------------------------------------- a sensor of the user's own
 class BaseSpeed(Sensor):
-    """docs/porting.md's computed sensor: the base's horizontal speed, refreshed by the sense phase."""
+    """docs/porting.md's computed sensor as the guide wrote it before sensors bound to a context (``bind(sim)``,
+    ``sim.root_lin_vel``): the context reads the same state views by name, so it runs unchanged."""
 
     name = "base_speed"
 

@@ -8,7 +8,6 @@ write from torch must be in place (``view[:] = ...``, ``copy_``), never a rebind
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import mujoco
@@ -18,7 +17,7 @@ import warp as wp
 
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
-from isaacgymenvs_mw.sim.cameras import Cameras, CameraView
+from isaacgymenvs_mw.sim.cameras import CameraSpec
 from isaacgymenvs_mw.sim.divergence import DIVERGED_SPEED, EQUALITY_DIVERGED  # noqa: F401 (their old home)
 from isaacgymenvs_mw.sim.forces import BodyForceRequests, BodyForces
 from isaacgymenvs_mw.sim.graph_engine import GraphEngine
@@ -26,16 +25,11 @@ from isaacgymenvs_mw.sim.kernels import init_warp
 from isaacgymenvs_mw.sim.lookups import Lookups
 from isaacgymenvs_mw.sim.memory import check_worlds_fit
 from isaacgymenvs_mw.sim.overflow import OverflowWatch
-from isaacgymenvs_mw.sim.sensors import REFRESH_PHASES, Sensor
+from isaacgymenvs_mw.sim.sensor_registry import SensorRegistry
+from isaacgymenvs_mw.sim.sensors import Sensor, SensorContext, sensor_columns
 from isaacgymenvs_mw.sim.views import TensorViews
 from isaacgymenvs_mw.sim.world_state import WorldState
 from isaacgymenvs_mw.utils.errors import ConfigError
-
-
-@dataclass
-class ContactSensor:
-    body: str
-    adr: int
 
 
 def _wp_device(device: str) -> wp.context.Device:
@@ -127,28 +121,10 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
-        m = mj_model
-        self.contact_sensors: dict[str, ContactSensor] = {}
-        for s in range(m.nsensor):
-            is_contact = int(m.sensor_type[s]) == int(mujoco.mjtSensor.mjSENS_CONTACT)
-            if is_contact and int(m.sensor_objtype[s]) == int(mujoco.mjtObj.mjOBJ_BODY):
-                body = self.body_names[m.sensor_objid[s]]
-                self.contact_sensors[body] = ContactSensor(body, int(m.sensor_adr[s]))
-        names = [s.name for s in sensors]
-        for sensor in sensors:
-            if names.count(sensor.name) > 1:
-                raise ConfigError(f"two sensors of the model are named {sensor.name!r} (sensors and cameras share one "
-                                  "namespace); give one another name")
-            if sensor.refresh not in REFRESH_PHASES:
-                raise ValueError(f"sensor {sensor.name!r}: refresh={sensor.refresh!r}; give one of {REFRESH_PHASES}")
-        # The render phase: one render context draws every rendered sensor (a camera of the model) at once.
-        rendered = [s for s in sensors if s.refresh == "render"]
-        self.cameras: Cameras | None = None
-        if rendered:
-            self.cameras = Cameras(mj_model, self.model, self.data, rendered, self.num_worlds, self.wp_device)
-        for sensor in sensors:
-            self.sensors.add(sensor, sensor.bind(self))
-        self._computed_sensors = [s for s in sensors if s.refresh == "sense" and type(s).sense is not Sensor.sense]
+        # The sensors' owner: it binds each to a context of what sensors read and keeps the sense and render lists.
+        context = SensorContext(mj_model, self.model, self.data, self.device, self.num_worlds, self.sensordata,
+                                sensor_columns(mj_model), self.state_views())
+        self.sensors = SensorRegistry(context, sensors, self.wp_device)
         # The kernels start compiling now, in the background (the render context above launched its own first): a
         # cold start compiles while the task builds the rest of itself, not after it.
         self._kernel_load = self._start_kernel_load()
@@ -183,39 +159,19 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
     def sense(self) -> None:
         """The step's sense phase: refresh every computed sensor from the current state (device torch work, no host
         sync, capturable). MuJoCo's sensors need nothing here: the physics step rewrote them."""
-        for sensor in self._computed_sensors:
-            sensor.sense()
+        self.sensors.sense()
 
-    def contact_columns(self, bodies: Sequence[str]) -> torch.Tensor:
-        """Columns of ``sensordata`` holding each body's net contact force, (len(bodies), 3); build once, reuse.
-
-        ``sensordata[:, contact_columns(bodies)]`` is then (num_worlds, len(bodies), 3) with no host transfer.
-        """
-        missing = [b for b in bodies if b not in self.contact_sensors]
-        if missing:
-            raise KeyError(f"no contact sensor on bodies {missing}; sensed bodies: {list(self.contact_sensors)}")
-        return torch.tensor([[self.contact_sensors[b].adr + k for k in range(3)] for b in bodies],
-                            device=self.device, dtype=torch.long).view(len(bodies), 3)
-
-    def contact_forces(self, bodies: Sequence[str]) -> torch.Tensor:
-        """Net contact force on each named body, (num_worlds, len(bodies), 3). Bodies need a contact sensor."""
-        return self.sensordata[:, self.contact_columns(bodies)]
-
-    def camera(self, name: str) -> CameraView:
-        """The images of camera ``name`` (an ``env.cameras`` key) for every world: ``rgb`` (N, 3, H, W) uint8,
-        ``depth`` (N, 1, H, W) float32 metres, ``segmentation`` (N, 1, H, W) int32 geom ids (sim/cameras.py)."""
-        views = self.cameras.views if self.cameras is not None else {}
-        if name not in views:
-            raise ConfigError(f"camera '{name}' is not declared in env.cameras; cameras: {list(views)}")
-        return views[name]
+    @property
+    def cameras(self) -> dict[str, CameraSpec]:
+        """The model's cameras (``env.cameras``) by name, in YAML order: the sensors the render refreshes
+        (``camera_terms(sim.cameras)`` observes them; their images are ``sensor(name, output=...)``)."""
+        return self.sensors.cameras
 
     def render_cameras(self) -> None:
         """The render phase: draw every camera of every world (the sensors refreshed by the render) from the current
         ``qpos`` (poses, BVH refit, render, unpack: one graph replay on CUDA); their views then hold the new
         images."""
-        if self.cameras is not None:
-            self._run("render", self.cameras.launch)
-            self.cameras.renders += 1
+        self.sensors.render(self._run)
 
     def save_model(self, path: str) -> None:
         """Write the compiled host model (nominal values, no per-world randomisation) as MuJoCo's binary ``.mjb``.

@@ -12,8 +12,14 @@ import torch
 import warp as wp
 
 from isaacgymenvs_mw.sim.scene import SCENE_TEXT_PREFIX, AssetView, main_ends, main_joints, scene_prefixes
-from isaacgymenvs_mw.sim.sensors import SensorViews
 from isaacgymenvs_mw.utils.rotations import quat_rotate
+
+
+# The views of the state a sensor may read (sim/sensors.py, SensorContext): all worlds' state, and the main asset's.
+_STATE_VIEWS = ("qpos", "qvel", "ctrl", "qacc", "qfrc_actuator", "actuator_force", "xpos", "xquat", "xipos", "xmat",
+                "site_xpos", "site_xmat", "mocap_pos", "mocap_quat", "cvel", "subtree_com", "sensordata",
+                "xfrc_applied", "dof_pos", "dof_vel")
+_ROOT_VIEWS = ("root_pos", "root_quat", "root_lin_vel", "root_ang_vel")
 
 
 class TensorViews:
@@ -43,7 +49,6 @@ class TensorViews:
         self.subtree_com = self.torch_view(d.subtree_com)
         self._body_rootid = torch.tensor(m.body_rootid, device=self.device, dtype=torch.long)
         self.sensordata = self.torch_view(d.sensordata)
-        self.sensors = SensorViews(m, self.sensordata)  # named slices of sensordata: self.sensor(name)
         self.xfrc_applied = self.torch_view(d.xfrc_applied)
         self.overflow = self.torch_view(d.overflow)
         self._qpos0 = self.torch_view(self.model.qpos0)
@@ -96,6 +101,11 @@ class TensorViews:
             if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) else None
             for a in range(m.nu)
         ]
+
+    def state_views(self) -> dict[str, torch.Tensor]:
+        """The views of the worlds' state by attribute name (what a sensor may read: ``SensorContext.state``)."""
+        names = [*_STATE_VIEWS, *(_ROOT_VIEWS if self.floating_base else ())]
+        return {name: getattr(self, name) for name in names}
 
     @property
     def num_dof(self) -> int:
