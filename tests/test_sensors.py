@@ -225,6 +225,31 @@ def test_observed_sensors_are_checked_when_the_task_is_built():
                                  overrides=[*IMU_OVERRIDES[::2], f"++task.env.observeSensors={observed}"])
 
 
+def test_any_task_observes_sensors_after_its_own_terms():
+    """env.observeSensors is VecTask's: Cartpole (no legged code) observes a frame sensor on its pole after its 4
+    terms; the sensor reads the pole's centre of mass (a body frame sensor's, MuJoCo's mjOBJ_BODY) as MuJoCo C's
+    kinematics puts it."""
+    import isaacgymenvs_mw
+
+    task = isaacgymenvs_mw.make("Cartpole", num_envs=3, sim_device="cpu", rl_device="cpu", seed=0,
+                                overrides=["++task.env.sensors={tip: {type: framepos, body: pole}}",
+                                           "++task.env.observeSensors={tip: 0.5}"])
+    layout = task.observations.obs_layout
+    assert layout.names[-1] == "tip" and layout.slices["tip"] == slice(4, 7) and task.num_obs == 7
+    task.reset()
+    for _ in range(3):
+        obs, *_ = task.step(torch.rand(3, 1) * 2 - 1)
+    tip = task.sim.sensor("tip")
+    expected = (tip * 0.5).clamp(-task.clip_obs, task.clip_obs)
+    torch.testing.assert_close(obs["obs"][:, 4:7], expected, rtol=0, atol=0)
+    task.sim.forward()  # the sensor from the current state, as MuJoCo C computes the body's inertial frame from it
+    model, data = task.sim.mj_model, mujoco.MjData(task.sim.mj_model)
+    for world in range(3):
+        data.qpos[:] = task.sim.qpos[world].double().numpy()
+        mujoco.mj_kinematics(model, data)
+        np.testing.assert_allclose(tip[world].numpy(), data.xipos[model.body("pole").id], atol=1e-5)
+
+
 # ------------------------------------------------------------------------------------- a sensor of the user's own
 class BaseSpeed(Sensor):
     """docs/porting.md's computed sensor as the guide wrote it before sensors bound to a context (``bind(sim)``,
