@@ -34,7 +34,7 @@ def test_the_camera_group_is_the_rendered_image_with_past_frames_that_shift_and_
     task = make()
     first = task.reset()["camera"]
     assert first.shape == (4, 9, 16, 32) and first.dtype == torch.uint8
-    view = task.sim.camera("front").rgb
+    view = task.sim.sensor("front", output="rgb")
     # After a reset every past frame is the first one.
     assert torch.equal(first[:, 0:3], view) and torch.equal(first[:, 3:6], view) and torch.equal(first[:, 6:9], view)
     previous = first
@@ -42,7 +42,7 @@ def test_the_camera_group_is_the_rendered_image_with_past_frames_that_shift_and_
     for _ in range(40):
         obs, _, reset, _ = task.step(torch.ones(4, 1))  # full push: episodes end within the loop
         current = obs["camera"]
-        assert torch.equal(current[:, 0:3], task.sim.camera("front").rgb)  # this step's render
+        assert torch.equal(current[:, 0:3], task.sim.sensor("front", output="rgb"))  # this step's render
         new = reset.bool()
         resets_seen += int(new.sum())
         # Envs that go on: frames move back by one. Envs that restarted: all frames are the new episode's first.
@@ -61,7 +61,7 @@ def test_stacking_selected_terms_keeps_only_their_channels_of_past_frames():
                            "+task.env.history.camera.terms=[depth]"))
     first = task.reset()["camera"]
     assert first.shape == (4, 4 + 2 * 1, 16, 32)
-    depth = lambda: torch.round(task.sim.camera("front").depth * 255 / 6.0).to(torch.uint8)  # noqa: E731
+    depth = lambda: torch.round(task.sim.sensor("front", output="depth") * 255 / 6.0).to(torch.uint8)  # noqa: E731
     assert torch.equal(first[:, 4:5], depth()) and torch.equal(first[:, 5:6], depth())
     previous = first
     for _ in range(30):
@@ -69,7 +69,8 @@ def test_stacking_selected_terms_keeps_only_their_channels_of_past_frames():
         obs, _, reset, _ = task.step(torch.ones(4, 1))
         current, new = obs["camera"], reset.bool()
         assert torch.equal(previous, kept)  # the step did not overwrite the observation it followed
-        assert torch.equal(current[:, 0:3], task.sim.camera("front").rgb) and torch.equal(current[:, 3:4], depth())
+        assert torch.equal(current[:, 0:3], task.sim.sensor("front", output="rgb"))
+        assert torch.equal(current[:, 3:4], depth())
         assert torch.equal(current[~new][:, 4:5], previous[~new][:, 3:4])  # last step's depth, one slot back
         assert torch.equal(current[~new][:, 5:6], previous[~new][:, 4:5])
         assert torch.equal(current[new][:, 4:6], current[new][:, 3:4].expand(-1, 2, -1, -1))
@@ -80,9 +81,9 @@ def test_stacking_selected_terms_keeps_only_their_channels_of_past_frames():
 def test_depth_terms_are_depth_over_depth_far_in_bytes():
     task = make("CartpoleCameraDepth", overrides=("task.env.history.camera.length=1",))
     obs = task.reset()["camera"]
-    view = task.sim.camera("front")
+    depth, depth_far = task.sim.sensor("front", output="depth"), task.sim.cameras["front"].depth_far
     assert obs.shape == (4, 1, 16, 32)
-    expected = torch.round(view.depth * 255 / view.depth_far).to(torch.uint8)
+    expected = torch.round(depth * 255 / depth_far).to(torch.uint8)
     assert torch.equal(obs, expected)
     assert (obs == 255).any() and (obs < 255).any()  # background at depthFar, the cart-pole nearer
 
@@ -90,10 +91,10 @@ def test_depth_terms_are_depth_over_depth_far_in_bytes():
 def test_render_interval_keeps_the_last_images_between_renders():
     task = make(overrides=("task.env.renderInterval=3", "task.env.history.camera.length=1"))
     task.reset()
-    renders = task.sim.cameras.renders
+    renders = task.sim.sensors.renders
     for _ in range(6):
         task.step(torch.zeros(4, 1))
-    assert task.sim.cameras.renders - renders == 2
+    assert task.sim.sensors.renders - renders == 2
 
 
 class _BackCamera(CartpoleCamera):

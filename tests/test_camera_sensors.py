@@ -27,8 +27,7 @@ def test_a_camera_is_a_sensor_whose_views_are_the_images_the_observation_reads()
     assert isinstance(camera, CameraSpec) and isinstance(camera, Sensor) and camera.refresh == "render"
     assert "front" in sim.sensors.names and sim.sensors.outputs("front") == ("rgb", "depth")
     assert [t.output for t in images.terms] == ["rgb", "depth"]
-    for term, source in zip(images.terms, images.sources):
-        read = getattr(source, term.output)  # what ImageGroup.compute copies into the observation
+    for term, read in zip(images.terms, images.images):  # what ImageGroup.compute copies into the observation
         view = sim.sensor("front", output=term.output)
         assert view is read and view.data_ptr() == read.data_ptr()
     # The observation after a step is built from those views, as the render left them.
@@ -51,12 +50,12 @@ def test_cameras_given_as_sensors_are_rendered_in_one_render_and_not_sensed():
     assert [s.name for s in request.all_sensors()] == ["a", "b"]
     sim = Simulator(build_model(request), 2, "cpu", sensors=request.all_sensors())
     assert sim.sensors.outputs("a") == ("depth",) and sim.sensors.outputs("b") == ("rgb", "segmentation")
-    assert sim._computed_sensors == []  # nothing of theirs in the sense phase
+    assert sim.sensors.computed == []  # nothing of theirs in the sense phase
     sim.sense()
-    assert sim.cameras.renders == 0 and (sim.sensor("a", output="depth") == 0).all()
+    assert sim.sensors.renders == 0 and (sim.sensor("a", output="depth") == 0).all()
     sim.render_cameras()
-    assert sim.cameras.renders == 1
+    assert sim.sensors.renders == 1
     assert (sim.sensor("a", output="depth") > 0).all() and sim.sensor("b", output="segmentation").max() >= 0
-    assert sim.sensor("b", output="rgb") is sim.camera("b").rgb
+    assert list(sim.cameras) == ["a", "b"] and sim.cameras["b"].outputs == ("rgb", "segmentation")
     with pytest.raises(ConfigError, match=r"^two sensors of the model are named 'a'"):
         Simulator(build_model(request), 1, "cpu", sensors=(*request.all_sensors(), request.cameras[0]))

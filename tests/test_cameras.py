@@ -41,6 +41,17 @@ def make_sim(env: dict, num_worlds: int = 3, **kwargs) -> tuple[Simulator, mujoc
     return Simulator(model, num_worlds, "cpu", sensors=request.all_sensors(), **kwargs), model
 
 
+class Images:
+    """Camera ``name`` of ``sim`` as these tests read it: its declared size and depth range (``sim.cameras``), and
+    each output it renders as the sensor view ``sim.sensor(name, output=...)``."""
+
+    def __init__(self, sim: Simulator, name: str) -> None:
+        spec = sim.cameras[name]
+        self.width, self.height, self.depth_far, self.outputs = spec.width, spec.height, spec.depth_far, spec.outputs
+        self.images = {out: sim.sensor(name, output=out) for out in spec.outputs}
+        self.rgb, self.depth, self.segmentation = (self.images.get(out) for out in ("rgb", "depth", "segmentation"))
+
+
 @pytest.fixture(scope="module")
 def rendered() -> Simulator:
     sim, _ = make_sim(scene_env())
@@ -73,7 +84,7 @@ def ray_cast(m: mujoco.MjModel, qpos: np.ndarray, camera: str, width: int, heigh
 
 @pytest.mark.parametrize("camera", ["side", "onboard"])
 def test_depth_and_segmentation_equal_mj_ray_through_the_same_pixels(rendered, camera):
-    sim, view = rendered, rendered.camera(camera)
+    sim, view = rendered, Images(rendered, camera)
     assert view.depth.shape == (3, 1, view.height, view.width) and view.depth.dtype == torch.float32
     assert view.segmentation.shape == (3, 1, view.height, view.width) and view.segmentation.dtype == torch.int32
     for world in range(3):
@@ -89,19 +100,20 @@ def test_a_camera_on_a_moving_body_follows_it(rendered):
     at the same depths in every world, while the world-fixed camera sees them elsewhere."""
     m = rendered.mj_model
     carried = [m.geom("box").id, m.geom("ball").id]
-    seg, depth = rendered.camera("onboard").segmentation[:, 0], rendered.camera("onboard").depth[:, 0]
+    seg = rendered.sensor("onboard", output="segmentation")[:, 0]
+    depth = rendered.sensor("onboard", output="depth")[:, 0]
     on_carrier = torch.isin(seg, torch.tensor(carried))
     assert on_carrier[0].float().mean() > 0.05
     for world in (1, 2):
         assert torch.equal(on_carrier[world], on_carrier[0])
         torch.testing.assert_close(depth[world][on_carrier[0]], depth[0][on_carrier[0]], atol=1e-4, rtol=0)
-    side = torch.isin(rendered.camera("side").segmentation[:, 0], torch.tensor(carried))
+    side = torch.isin(rendered.sensor("side", output="segmentation")[:, 0], torch.tensor(carried))
     assert not torch.equal(side[1], side[0]) and not torch.equal(side[2], side[0])
 
 
 def test_segmentation_ids_name_the_geoms_and_rgb_has_their_colours(rendered):
     """Each geom id covers pixels of that geom's colour (R, G, B channel order); the background is -1."""
-    m, view = rendered.mj_model, rendered.camera("side")
+    m, view = rendered.mj_model, Images(rendered, "side")
     assert view.rgb.shape == (3, 3, view.height, view.width) and view.rgb.dtype == torch.uint8
     seg, rgb = view.segmentation[:, 0], view.rgb.permute(0, 2, 3, 1).float()
     for name, channel in (("box", 0), ("ball", 1), ("wall", 2)):  # red box, green ball, blue wall
@@ -117,10 +129,10 @@ def test_render_follows_writes_and_resets(rendered):
     sim, _ = make_sim(scene_env(), num_worlds=2)
     sim.qpos.copy_(QPOS[:2])
     sim.render_cameras()
-    before = sim.camera("side").depth.clone()
+    before = sim.sensor("side", output="depth").clone()
     sim.reset_worlds(torch.tensor([False, True]))  # world 1 back to qpos0 = QPOS[0]
     sim.render_cameras()
-    after = sim.camera("side").depth
+    after = sim.sensor("side", output="depth")
     torch.testing.assert_close(after[0], before[0])
     torch.testing.assert_close(after[1], before[0])  # as world 0, which sits at qpos0
 
@@ -133,8 +145,8 @@ def test_captured_render_equals_eager():
             sim.qpos.copy_(QPOS[:2] * (1 + step))
             sim.render_cameras()
         for name in ("side", "onboard"):
-            for out in eager.camera(name).outputs:
-                assert torch.equal(captured.camera(name).image(out), eager.camera(name).image(out)), (step, name, out)
+            for out in eager.sensors.outputs(name):
+                assert torch.equal(captured.sensor(name, output=out), eager.sensor(name, output=out)), (step, name, out)
     assert "render" in captured._graphs
 
 

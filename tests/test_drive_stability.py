@@ -315,8 +315,8 @@ def test_run_time_check_resets_a_world_whose_pinned_foot_drifted(tmp_path):
     """A world whose foot is 0.5 m off its pin at modest, finite speeds is reset (the NaN/speed check alone would
     keep it); one 1 cm off is not. The reference drift comes from MuJoCo C's kinematics of the same states."""
     from isaacgymenvs_mw.sim import Simulator
-    from isaacgymenvs_mw.sim.simulator import EQUALITY_DIVERGED
-    from isaacgymenvs_mw.sim.stability import BlowupLog
+    from isaacgymenvs_mw.sim.divergence import EQUALITY_DIVERGED
+    from isaacgymenvs_mw.sim.blowup import BlowupLog
 
     model, _ = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1, probe=False)
     sim = Simulator(model, 3, "cpu")
@@ -352,7 +352,7 @@ def test_run_time_check_catches_the_closed_chain_that_drifts_apart(tmp_path):
     """BallBalance's gains on the pinned leg in MuJoCo Warp: the worlds are reset for the broken pin within a
     second, before any speed reaches 1e4 (MuJoCo C diverges the same way: test above)."""
     from isaacgymenvs_mw.sim import Simulator
-    from isaacgymenvs_mw.sim.stability import BlowupLog
+    from isaacgymenvs_mw.sim.blowup import BlowupLog
 
     model, _ = build_leg(tmp_path, 4000.0, 100.0, "implicitfast", probe=False)
     sim = Simulator(model, 2, "cpu")

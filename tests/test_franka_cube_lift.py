@@ -223,7 +223,7 @@ def test_the_depth_image_sees_the_cube_where_a_pinhole_camera_puts_it():
     x, y, z = camera_frame(pos, np.array(cam["lookAt"]))
     a, b = A_POS, B_POS
     env.sim.render_cameras()
-    depth = env.sim.camera("overhead").depth[:, 0].numpy()
+    depth = env.sim.sensor("overhead", output="depth")[:, 0].numpy()
     for world, centre in ((0, a), (1, b)):
         top = centre + [0.0, 0.0, 0.025]
         row, col = pixel_of(cam, top)
@@ -244,7 +244,7 @@ def test_the_depth_image_sees_the_cube_where_a_pinhole_camera_puts_it():
         assert (depth[world][window] < depth[other][window] - 0.01).sum() >= 9
     # what the policy gets after a step is that step's render in bytes: 0 at the camera, 255 at depthFar
     obs, _, _, _ = env.step(torch.zeros(2, 8))
-    expected = torch.round(env.sim.camera("overhead").depth * 255 / cam["depthFar"]).to(torch.uint8)
+    expected = torch.round(env.sim.sensor("overhead", output="depth") * 255 / cam["depthFar"]).to(torch.uint8)
     assert torch.equal(obs["camera"], expected)
 
 

@@ -271,7 +271,7 @@ def test_stands_for_two_seconds_at_the_default_pose(quiet_task, robot, urdf):
         assert not task.terminated.any()
         assert torch.equal(task.progress_buf, torch.full((N,), k))
         heights.append(task.sim.root_pos[:, 2].clone())
-        base_forces.append(torch.norm(task.sim.contact_forces([facts["base"]]), dim=-1).max())
+        base_forces.append(torch.norm(task.sim.sensor(f"contact_{facts['base']}"), dim=-1).max())
     heights = torch.stack(heights)
     assert heights.min() > 0.6 * nominal, (heights.min(), nominal)
     assert heights.max() < facts["base_init_pos"][2] + 0.01  # dropped onto its feet, did not bounce up
@@ -282,7 +282,7 @@ def test_stands_for_two_seconds_at_the_default_pose(quiet_task, robot, urdf):
     urdf_total = sum(urdf["masses"].values())
     base_id = mujoco.mj_name2id(task.sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, facts["base"])
     added = task.sim.model_field("body_mass")[:, base_id].numpy() - urdf["masses"][facts["base"]]
-    foot_fz = task.sim.contact_forces(facts["feet"])[..., 2].sum(dim=1).abs().numpy()
+    foot_fz = torch.stack([task.sim.sensor(f"contact_{f}") for f in facts["feet"]], 1)[..., 2].sum(dim=1).abs().numpy()
     np.testing.assert_allclose(foot_fz, (urdf_total + added) * 9.81, rtol=0.02)
 
     # Privileged states: friction, added mass, base height, four foot contacts.

@@ -218,13 +218,13 @@ def test_contact_force_sign_and_frame(tmp_path):
     """The net contact force sensor reads the force the body exerts on what it touches, in the world frame: a
     resting body shows -m g in z, the opposite sign to IsaacGym's net_contact_force (the force on the body)."""
     task = box_task(tmp_path, keepAssetContacts=False)
-    columns = task.sim.contact_columns(["box"])
-    assert list(task.sim.contact_sensors) == ["box"]
+    adr = int(task.sim.mj_model.sensor("contact_box").adr[0])
+    assert list(task.sim.sensors.get("contact_forces").bodies) == ["box"]
     settle(task, 300, push_x=5.0)  # 5 N pushes the box along +x; static friction (mu 1 * 19.6 N) holds it
     weight = 2.001 * 9.81
-    force = task.sim.sensordata[:, columns][:, 0]
+    force = task.sim.sensordata[:, adr:adr + 3]
     np.testing.assert_allclose(force.numpy(), [[5.0, 0.0, -weight]] * 2, atol=2e-2)
-    np.testing.assert_allclose(task.sim.contact_forces(["box"])[:, 0].numpy(), force.numpy())
+    np.testing.assert_allclose(task.sim.sensor("contact_forces")[:, 0].numpy(), force.numpy())
     assert abs(float(task.sim.qvel[0, 0])) < 1e-2  # it did not slide: friction balanced the push
 
 

@@ -124,7 +124,7 @@ def test_train_test_and_make_a_project_outside_the_repository(project, tmp_path,
                                 overrides=[f"task_module={MODULE}"], config_dir=project / "cfg")
     assert type(task).__module__ == MODULE and task.num_envs == 3
     assert task.sim.actuator_names == ["right_hip_motor", "left_hip_motor"]
-    assert list(task.sim.contact_sensors) == ["left_foot", "right_foot"]
+    assert list(task.sim.sensors.get("contact_forces").bodies) == ["left_foot", "right_foot"]
     obs = task.reset()["obs"]
     torch.testing.assert_close(obs[:, 0], torch.full((3,), 0.6))  # the MJCF torso's own start height
 

@@ -179,7 +179,7 @@ def test_legged_imu_equals_mujoco_c_in_the_air_and_on_the_ground(go1):
                                        err_msg=f"world {w}, {'in the air' if airborne else 'standing'}")
         # The gyro is the base's angular velocity in its own frame, which is MuJoCo's free-joint qvel[3:6].
         np.testing.assert_allclose(imu[:, 3:].double().numpy(), state[1][:, 3:6], atol=1e-5)
-        feet = sim.contact_forces(go1.feet).norm(dim=-1).amax(dim=1)
+        feet = torch.stack([sim.sensor(f"contact_{foot}") for foot in go1.feet], 1).norm(dim=-1).amax(dim=1)
         if airborne:  # proper acceleration: a body in free fall reads far less than gravity
             assert float(feet.max()) == 0.0 and float(imu[:, :3].norm(dim=1).max()) < 9.81 * 0.95
         else:  # standing: the feet push the base up, and it reads that push along its up axis
@@ -188,13 +188,17 @@ def test_legged_imu_equals_mujoco_c_in_the_air_and_on_the_ground(go1):
 
 def test_contact_forces_sensor_is_a_view_of_the_contact_sensors(go1):
     forces = go1.sim.sensor("contact_forces")
-    bodies = list(go1.sim.contact_sensors)
+    bodies = go1.sim.sensors.get("contact_forces").bodies
     assert forces.shape == (WORLDS, len(bodies), 3)
     assert forces.untyped_storage().data_ptr() == go1.sim.sensordata.untyped_storage().data_ptr()  # no copy
     go1.reset()
     go1.step(torch.zeros(WORLDS, 12))
     assert float(forces.norm(dim=-1).max()) > 1.0  # the feet stand
-    torch.testing.assert_close(forces, go1.sim.contact_forces(bodies), rtol=0, atol=0)
+    # Body by body, the columns MuJoCo gives each body's contact sensor (net force: 3 values).
+    m = go1.sim.mj_model
+    columns = [go1.sim.sensordata[:, m.sensor(f"contact_{b}").adr[0]:][:, :3] for b in bodies]
+    assert all(int(m.sensor(f"contact_{b}").dim[0]) == 3 for b in bodies)
+    torch.testing.assert_close(forces, torch.stack(columns, dim=1), rtol=0, atol=0)
 
 
 def test_legged_imu_observation_term_has_its_size_scale_and_values(go1):
@@ -221,9 +225,35 @@ def test_observed_sensors_are_checked_when_the_task_is_built():
                                  overrides=[*IMU_OVERRIDES[::2], f"++task.env.observeSensors={observed}"])
 
 
+def test_any_task_observes_sensors_after_its_own_terms():
+    """env.observeSensors is VecTask's: Cartpole (no legged code) observes a frame sensor on its pole after its 4
+    terms; the sensor reads the pole's centre of mass (a body frame sensor's, MuJoCo's mjOBJ_BODY) as MuJoCo C's
+    kinematics puts it."""
+    import isaacgymenvs_mw
+
+    task = isaacgymenvs_mw.make("Cartpole", num_envs=3, sim_device="cpu", rl_device="cpu", seed=0,
+                                overrides=["++task.env.sensors={tip: {type: framepos, body: pole}}",
+                                           "++task.env.observeSensors={tip: 0.5}"])
+    layout = task.observations.obs_layout
+    assert layout.names[-1] == "tip" and layout.slices["tip"] == slice(4, 7) and task.num_obs == 7
+    task.reset()
+    for _ in range(3):
+        obs, *_ = task.step(torch.rand(3, 1) * 2 - 1)
+    tip = task.sim.sensor("tip")
+    expected = (tip * 0.5).clamp(-task.clip_obs, task.clip_obs)
+    torch.testing.assert_close(obs["obs"][:, 4:7], expected, rtol=0, atol=0)
+    task.sim.forward()  # the sensor from the current state, as MuJoCo C computes the body's inertial frame from it
+    model, data = task.sim.mj_model, mujoco.MjData(task.sim.mj_model)
+    for world in range(3):
+        data.qpos[:] = task.sim.qpos[world].double().numpy()
+        mujoco.mj_kinematics(model, data)
+        np.testing.assert_allclose(tip[world].numpy(), data.xipos[model.body("pole").id], atol=1e-5)
+
+
 # ------------------------------------------------------------------------------------- a sensor of the user's own
 class BaseSpeed(Sensor):
-    """docs/contributing.md's computed sensor: the base's horizontal speed, refreshed by the sense phase."""
+    """docs/contributing.md's computed sensor as the guide wrote it before sensors bound to a context (``bind(sim)``,
+    ``sim.root_lin_vel``): the context reads the same state views by name, so it runs unchanged."""
 
     name = "base_speed"
 

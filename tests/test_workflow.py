@@ -364,7 +364,8 @@ def step_recording(task, steps: int) -> tuple[list[warnings.WarningMessage], lis
         warnings.simplefilter("always")
         for _ in range(steps):
             task.step(actions)
-            peak = torch.maximum(peak, task.sim.contact_forces(FEET).norm(dim=-1))
+            feet = torch.stack([task.sim.sensor(f"contact_{foot}") for foot in FEET], dim=1)
+            peak = torch.maximum(peak, feet.norm(dim=-1))
         keys = task.sim.poll_overflow()
     return caught, keys, peak
 

@@ -36,11 +36,13 @@ from isaacgymenvs_mw.sim.request import (
     torque_speed_limits,
 )
 from isaacgymenvs_mw.sim.scene import AssetView
+from isaacgymenvs_mw.sim.sensor_registry import SensorRegistry
 from isaacgymenvs_mw.sim.sensors import (
     SENSOR_TYPES,
     ContactForces,
     HeightScan,
     Sensor,
+    SensorContext,
     SensorSpec,
     sensor_specs,
 )
@@ -64,6 +66,8 @@ __all__ = [
     "ContactForces",
     "HeightScan",
     "Sensor",
+    "SensorContext",
+    "SensorRegistry",
     "SensorSpec",
     "sensor_specs",
     "asset_path",

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar, Mapping, Sequence
+from typing import ClassVar, Mapping, Sequence
 
 import mujoco
 import numpy as np
@@ -31,14 +31,12 @@ import warp as wp
 
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.names import one_body
-from isaacgymenvs_mw.sim.sensors import Sensor
+from isaacgymenvs_mw.sim.sensors import Sensor, SensorContext
 from isaacgymenvs_mw.utils.config import check_entry, real_number, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-if TYPE_CHECKING:  # the simulator imports this module
-    from isaacgymenvs_mw.sim.simulator import Simulator
-
 OUTPUTS = ("rgb", "depth", "segmentation")
+# The channels of each output's image: the one table of them (the image observation reads it too).
 CHANNELS = {"rgb": 3, "depth": 1, "segmentation": 1}
 CAMERA_KEYS = ("body", "pos", "rot", "lookAt", "fovy", "width", "height", "outputs", "depthFar")
 WORLD = "world"  # env.cameras.<name>.body of a camera fixed in the world
@@ -84,10 +82,10 @@ class CameraSpec(Sensor):
         parent.add_camera(name=self.name, pos=list(self.pos), quat=list(self.quat), fovy=float(self.fovy),
                           resolution=[self.width, self.height])
 
-    def bind(self, sim: Simulator) -> dict[str, torch.Tensor]:
-        """{output: (N, C, H, W) image}: the views the simulator's render context writes (``sim.camera(name)``)."""
-        view = sim.camera(self.name)
-        return {output: view.image(output) for output in self.outputs}
+    def bind(self, context: SensorContext) -> dict[str, torch.Tensor]:
+        """{output: (N, C, H, W) image}: the views the render context writes (``sim.sensor(name, output=...)``)."""
+        images = context.images[self.name]
+        return {output: images[output] for output in self.outputs}
 
 
 def camera_specs(cfg: Mapping | None) -> tuple[CameraSpec, ...]:
@@ -245,7 +243,10 @@ class Cameras:
                 self.views[cam.name] = CameraView(cam, index, arrays)
         rc = self.context
         self._adr = {"rgb": rc.rgb_adr.numpy(), "depth": rc.depth_adr.numpy(), "segmentation": rc.seg_adr.numpy()}
-        self.renders = 0
+
+    def images(self) -> dict[str, dict[str, torch.Tensor]]:
+        """{camera: {output: (N, C, H, W) image}}: the views each render rewrites, what the cameras bind to."""
+        return {name: {out: view.image(out) for out in view.outputs} for name, view in self.views.items()}
 
     def launch(self) -> None:
         """Poses from the current state, BVH refit, render, unpack: Warp launches only (capturable)."""

@@ -20,6 +20,8 @@ Buffers, per world and body, (slot, world, body, term) vec3; slot 0 acts for one
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import torch
 import warp as wp
 
@@ -107,3 +109,58 @@ class BodyForces:
         """Put the user's ``xfrc_applied`` back and drop the one-step requests."""
         wp.copy(self._data.xfrc_applied, self._user)
         self._wrench_wp[0].zero_()
+
+
+class BodyForceRequests:
+    """The simulator's body-force API (IsaacGym's force tensors) over ``BodyForces``: a part of ``Simulator``
+    (sim/simulator.py), which sets ``body_forces`` (None until the first request), ``data``, ``num_worlds``,
+    ``mj_model`` and ``device``, and resolves bodies (``body_ids``, sim/lookups.py)."""
+
+    def apply_body_forces(
+        self,
+        forces: torch.Tensor | None = None,
+        torques: torch.Tensor | None = None,
+        bodies: Sequence[str | int] | torch.Tensor | None = None,
+        positions: torch.Tensor | None = None,
+        frame: str = "world",
+        persist: bool = False,
+    ) -> None:
+        """Push bodies with forces and torques, (N, len(bodies), 3) each, from the next ``simulate()`` on.
+
+        IsaacGym's ``apply_rigid_body_force_tensors`` / ``..._at_pos_tensors``, which act for one simulate call.
+        - ``persist=False``: acts during the next ``simulate()`` only (all its physics steps), then is dropped;
+          ``persist=True``: acts every step until ``clear_body_forces()`` or a reset of the world. Calls add up.
+        - ``frame="world"``: forces and torques in world axes, fixed over the step; ``positions`` are world points
+          that stay put while the body moves (MuJoCo's ``mj_applyFT`` at each physics step: torque about the
+          centre of mass ``t + (p - com) x f``). ``frame="body"``: forces, torques and ``positions`` in the body's
+          own frame (points relative to the body origin); the wrench turns with the body at every physics step.
+        - Without ``positions`` forces act at the centre of mass.
+        Torch ops only (no host sync), so it may sit in a captured ``pre_physics_step``; bodies given as a list are
+        resolved once and cached. Once used, each step launches one small kernel per physics step (plus a pose
+        refresh when a body-frame wrench or a point was used) until ``clear_body_forces()``. ``xfrc_applied`` keeps
+        the user's own writes only: these forces are added to it inside the physics and do not show there.
+        """
+        if frame not in FRAMES:
+            raise ValueError(f"frame={frame!r} is invalid: give one of {list(FRAMES)}")
+        if forces is None and torques is None:
+            raise ValueError("apply_body_forces: give forces, torques or both (both are None)")
+        if positions is not None and forces is None:
+            raise ValueError("positions given without forces: a point of application needs a force")
+        ids = self.body_ids(bodies)
+        expected = (self.num_worlds, int(ids.shape[0]), 3)
+        values = []
+        for name, value in (("forces", forces), ("torques", torques), ("positions", positions)):
+            if value is not None and tuple(value.shape) != expected:
+                raise ValueError(f"{name} has shape {tuple(value.shape)}; valid: (num_envs, len(bodies), 3) = "
+                                 f"{expected}")
+            values.append(None if value is None else value.to(self.device, torch.float32))
+        if self.body_forces is None:
+            self.body_forces = BodyForces(self.data, self.num_worlds, self.mj_model.nbody,
+                                          self.model_field("body_ipos"), self.device)
+        self.body_forces.add(ids, *values, frame=frame, persist=bool(persist))
+
+    def clear_body_forces(self) -> None:
+        """Drop every force of ``apply_body_forces`` (one-step and persistent) and stop launching its kernel."""
+        if self.body_forces is not None:
+            self.body_forces.clear()
+            self.body_forces.active = self.body_forces.needs_kinematics = False

@@ -4,8 +4,9 @@ output="rgb")``).
 
 A sensor is declared before the model is built (``ModelRequest.sensors``, or ``env.sensors`` and ``env.cameras`` in
 the task YAML; ``ModelRequest.all_sensors()`` lists them all) and adds what it needs to the model spec there
-(``Sensor.add_to``); once the model is compiled the simulator binds it (``Sensor.bind``: its views, listed in
-``Simulator.sensors``) and refreshes it in the phase of the step its ``refresh`` names:
+(``Sensor.add_to``); once the model is compiled the simulator's sensor registry (``SensorRegistry``,
+sim/sensor_registry.py; ``Simulator.sensors``) binds it to a ``SensorContext`` (``Sensor.bind``: its views) and
+refreshes it in the phase of the step its ``refresh`` names:
   * MuJoCo sensors (an asset's MJCF ``<sensor>`` section, ``env.sensors`` entries, the net contact forces of
     ``ContactForces``) are columns of the batched ``sensordata``, which each physics step rewrites; they have nothing
     to do in ``sense()``. MuJoCo computes them from the state at the start of that step (its forward pass runs before
@@ -38,8 +39,8 @@ torque about the site); they are not IsaacGym's asset force sensor, which sums t
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar, Mapping, Sequence
 
 import mujoco
 import torch
@@ -50,9 +51,6 @@ from isaacgymenvs_mw.sim.terrain import heightfield_grid
 from isaacgymenvs_mw.utils.config import check_entry
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import yaw_from_quat
-
-if TYPE_CHECKING:  # the simulator imports this module
-    from isaacgymenvs_mw.sim.simulator import Simulator
 
 _S = mujoco.mjtSensor
 # env.sensors types -> the MuJoCo sensors each adds, in column order (``imu``: two). All read a site (or a site of
@@ -79,6 +77,49 @@ GROUP_TEXT_PREFIX = "sensor_group:"
 REFRESH_PHASES = ("sense", "render")
 
 
+@dataclass(frozen=True)
+class SensorContext:
+    """What a sensor may bind to (``Sensor.bind``): the compiled model, the device state and the torch views of that
+    state, not the whole simulator (whose methods step, reset and capture: no sensor's business).
+
+    Args:
+        mj_model: the compiled host model.
+        model, data: MuJoCo Warp's device Model and Data (``num_worlds`` worlds).
+        device: the torch device of the views.
+        num_worlds: number of worlds (= numEnvs).
+        sensordata: (num_worlds, nsensordata) torch view of ``data.sensordata``.
+        columns: {MuJoCo sensor or sensor group name: its columns of ``sensordata``}.
+        state: the simulator's torch views of the state by name (``qpos``, ``qvel``, ``xpos``, ``site_xpos``,
+            ``dof_pos``, and ``root_pos``, ``root_quat``, ``root_lin_vel``, ``root_ang_vel`` on a floating base; the
+            same tensors as ``Simulator``'s attributes of those names), also read as attributes:
+            ``context.root_lin_vel``.
+        images: {camera name: {output: (num_worlds, C, H, W) image}}, the render context's images.
+    """
+
+    mj_model: mujoco.MjModel
+    model: object
+    data: object
+    device: torch.device
+    num_worlds: int
+    sensordata: torch.Tensor
+    columns: Mapping[str, slice]
+    state: Mapping[str, torch.Tensor] = field(default_factory=dict)
+    images: Mapping[str, Mapping[str, torch.Tensor]] = field(default_factory=dict)
+
+    def __getattr__(self, name: str) -> torch.Tensor:
+        state = self.__dict__.get("state", {})
+        if name not in state:
+            raise AttributeError(f"a sensor's context has no {name!r}; its state views: {list(state)}")
+        return state[name]
+
+    def mujoco_sensor(self, name: str, key: str) -> torch.Tensor:
+        """The (num_worlds, dim) slice of ``sensordata`` of the MuJoCo sensor (or sensor group) ``name``; ``key``
+        names where the user wrote it, for the error."""
+        if name not in self.columns:
+            raise ConfigError(f"{key}: {name!r} is not a MuJoCo sensor of the model; its sensors: {list(self.columns)}")
+        return self.sensordata[:, self.columns[name]]
+
+
 class Sensor(ABC):
     """One sensor of the simulator, seen by tasks as the view ``Simulator.sensor(name)``, or, for a sensor with
     several outputs (a camera's ``rgb``, ``depth``, ...), one view per output: ``Simulator.sensor(name,
@@ -100,9 +141,10 @@ class Sensor(ABC):
         nothing."""
 
     @abstractmethod
-    def bind(self, sim: Simulator) -> torch.Tensor | Mapping[str, torch.Tensor]:
-        """Its (num_worlds, ...) view on ``sim``'s device ({output: view} for each of ``outputs``), made once after
-        the model is compiled. Always the same tensors, refreshed in place: a captured step holds their addresses."""
+    def bind(self, context: SensorContext) -> torch.Tensor | Mapping[str, torch.Tensor]:
+        """Its (num_worlds, ...) view on the context's device ({output: view} for each of ``outputs``), made once
+        after the model is compiled. Always the same tensors, refreshed in place: a captured step holds their
+        addresses."""
 
     def sense(self) -> None:
         """Refresh the view from the simulator's current state: device torch work only, no host sync (it runs in
@@ -156,8 +198,8 @@ class SensorSpec(Sensor):
         if len(parts) > 1:
             spec.add_text(name=f"{GROUP_TEXT_PREFIX}{self.name}", data=" ".join(parts))
 
-    def bind(self, sim: Simulator) -> torch.Tensor:
-        return sim.sensors.view(self.name, self.key)
+    def bind(self, context: SensorContext) -> torch.Tensor:
+        return context.mujoco_sensor(self.name, self.key)
 
 
 def sensor_specs(cfg: Mapping | None) -> tuple[SensorSpec, ...]:
@@ -200,9 +242,9 @@ class ContactForces(Sensor):
                             objtype=mujoco.mjtObj.mjOBJ_BODY, objname=body,
                             intprm=[1 << 1, 3, 1])  # data = force (bit 1), reduce = net force (3), one slot
 
-    def bind(self, sim: Simulator) -> torch.Tensor:
-        first = sim.sensors.columns[f"contact_{self.bodies[0]}"].start
-        return sim.sensordata[:, first:first + 3 * len(self.bodies)].unflatten(1, (len(self.bodies), 3))
+    def bind(self, context: SensorContext) -> torch.Tensor:
+        first = context.columns[f"contact_{self.bodies[0]}"].start
+        return context.sensordata[:, first:first + 3 * len(self.bodies)].unflatten(1, (len(self.bodies), 3))
 
 
 class HeightScan(Sensor):
@@ -210,80 +252,54 @@ class HeightScan(Sensor):
     metres, centred on each world's floating base and turned with its yaw (x forward): ``height_scan``,
     (num_worlds, points_x * points_y), x-major (legged_gym's measured heights). The heights are those of the
     compiled ground (its heightfields and boxes, read back from the model), interpolated as MuJoCo collides with
-    them (``height_map``, which also looks up any other point)."""
+    them (``height_map``, which also looks up any other point: ``SensorRegistry.get("height_scan").height_map``)."""
 
     name = "height_scan"
 
     def __init__(self, length: float, width: float, points_x: int, points_y: int) -> None:
         self.length, self.width = float(length), float(width)
         self.points_x, self.points_y = int(points_x), int(points_y)
-        self.height_map: HeightMap | None = None  # made by bind, from the compiled model
+        self._height_map: HeightMap | None = None  # made by bind, from the compiled model
 
-    def bind(self, sim: Simulator) -> torch.Tensor:
-        if not sim.floating_base:
+    @property
+    def height_map(self) -> HeightMap:
+        """The ground's height (m, world z) at any points (x, y): ``height_map(x, y)``, torch on the device; what
+        the scan samples. Exists once the sensor is bound (the simulator is built)."""
+        if self._height_map is None:
+            raise RuntimeError("height_scan: the height map exists once the simulator has bound the sensor")
+        return self._height_map
+
+    def bind(self, context: SensorContext) -> torch.Tensor:
+        if "root_pos" not in context.state:
             raise ConfigError("a height scan follows a floating base, but the model's root is fixed "
                               "(env.asset.fixBaseLink)")
-        grid = heightfield_grid(sim.mj_model)
-        self.height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], sim.device)
-        xs = torch.linspace(-0.5, 0.5, self.points_x, device=sim.device) * self.length
-        ys = torch.linspace(-0.5, 0.5, self.points_y, device=sim.device) * self.width
+        grid = heightfield_grid(context.mj_model)
+        self._height_map = HeightMap(grid["heights"], grid["x0"], grid["y0"], grid["spacing"], context.device)
+        xs = torch.linspace(-0.5, 0.5, self.points_x, device=context.device) * self.length
+        ys = torch.linspace(-0.5, 0.5, self.points_y, device=context.device) * self.width
         gx, gy = torch.meshgrid(xs, ys, indexing="ij")
         self._px, self._py = gx.flatten(), gy.flatten()  # (P,) each, base yaw frame
-        self._root_pos, self._root_quat = sim.root_pos, sim.root_quat
-        self._heights = torch.zeros(sim.num_worlds, self._px.shape[0], device=sim.device)
+        self._root_pos, self._root_quat = context.state["root_pos"], context.state["root_quat"]
+        self._heights = torch.zeros(context.num_worlds, self._px.shape[0], device=context.device)
         return self._heights
 
     def sense(self) -> None:
         yaw = yaw_from_quat(self._root_quat)
         c, s = torch.cos(yaw).unsqueeze(1), torch.sin(yaw).unsqueeze(1)
         px, py, pos = self._px, self._py, self._root_pos
-        self._heights[:] = self.height_map(pos[:, 0:1] + c * px - s * py, pos[:, 1:2] + s * px + c * py)
+        self._heights[:] = self._height_map(pos[:, 0:1] + c * px - s * py, pos[:, 1:2] + s * px + c * py)
 
 
-class SensorViews:
-    """Every named sensor of a compiled model as a basic slice of ``sensordata`` ((num_worlds, nsensordata) torch
-    view of the Warp array): reading one costs no copy, and the physics refreshes it in place. The views of bound
-    ``Sensor``s (``add``) are looked up by name beside them, a sensor of several outputs by name and output."""
-
-    def __init__(self, m: mujoco.MjModel, sensordata: torch.Tensor) -> None:
-        self._data = sensordata
-        self._bound: dict[str, torch.Tensor | Mapping[str, torch.Tensor]] = {}
-        self.columns: dict[str, slice] = {}
-        for s in range(m.nsensor):
-            name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SENSOR, s)
-            if name:
-                adr = int(m.sensor_adr[s])
-                self.columns[name] = slice(adr, adr + int(m.sensor_dim[s]))
-        for group, text in scene_prefixes(m, GROUP_TEXT_PREFIX).items():  # {text name: its text}, any prefix
-            parts = [self.columns[p] for p in text.split()]
-            self.columns[group] = slice(parts[0].start, parts[-1].stop)
-
-    @property
-    def names(self) -> list[str]:
-        return list(dict.fromkeys([*self.columns, *self._bound]))
-
-    def add(self, sensor: Sensor, views: torch.Tensor | Mapping[str, torch.Tensor]) -> None:
-        """Look ``sensor`` up by its name as ``views`` (what its ``bind`` returned) from now on."""
-        if sensor.outputs and (not isinstance(views, Mapping) or tuple(views) != tuple(sensor.outputs)):
-            raise TypeError(f"{type(sensor).__name__}.bind must return {{output: view}} for {list(sensor.outputs)}")
-        self._bound[sensor.name] = dict(views) if sensor.outputs else views
-
-    def outputs(self, name: str) -> tuple[str, ...]:
-        """The outputs of sensor ``name`` (a camera's ``rgb``, ``depth``, ``segmentation``); () for one view."""
-        views = self._bound.get(name)
-        return tuple(views) if isinstance(views, dict) else ()
-
-    def view(self, name: str, key: str, output: str | None = None) -> torch.Tensor:
-        """(num_worlds, ...) view of sensor ``name`` (of its ``output``, for a sensor of several); ``key``: where the
-        user named it (the error names it)."""
-        views = self._bound.get(name)
-        if views is None:
-            if name not in self.columns:
-                raise ConfigError(f"{key}: {name!r} is not a sensor of the model; its sensors: {self.names}")
-            views = self._data[:, self.columns[name]]
-        outputs = list(views) if isinstance(views, dict) else []
-        if outputs and output not in outputs:
-            raise ConfigError(f"{key}: sensor {name!r} has the outputs {outputs}; give one (output={output!r})")
-        if not outputs and output is not None:
-            raise ConfigError(f"{key}: sensor {name!r} has one view, no output {output!r}")
-        return views[output] if outputs else views
+def sensor_columns(m: mujoco.MjModel) -> dict[str, slice]:
+    """{name: columns of ``sensordata``} of every named MuJoCo sensor of ``m``, and of every sensor group (an
+    ``imu``: its parts' adjacent columns, recorded as a custom text element)."""
+    columns = {}
+    for s in range(m.nsensor):
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SENSOR, s)
+        if name:
+            adr = int(m.sensor_adr[s])
+            columns[name] = slice(adr, adr + int(m.sensor_dim[s]))
+    for group, text in scene_prefixes(m, GROUP_TEXT_PREFIX).items():  # {text name: its text}, any prefix
+        parts = [columns[p] for p in text.split()]
+        columns[group] = slice(parts[0].start, parts[-1].stop)
+    return columns

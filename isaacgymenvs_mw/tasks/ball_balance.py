@@ -53,7 +53,7 @@ class BallBalance(VecTask):
         env = cfg["env"]
         n, dev = self.num_envs, self.device
         self.action_speed_scale = float(env.get("actionSpeedScale", 20.0))
-        # Views of sensordata, one per leg (no copies; each physics step rewrites them).
+        # The legs' MuJoCo sensors, one view per leg (no copies; each physics step rewrites them).
         self.leg_forces = self._leg_sensors(env, "legForceSensors")
         self.leg_torques = self._leg_sensors(env, "legTorqueSensors")
         self.ball = self.sim.asset(BALL)

@@ -36,7 +36,6 @@ from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, PER_STEP, Metric
 from isaacgymenvs_mw.tasks.base.observations import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
-from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
@@ -56,7 +55,6 @@ class LeggedTask(VecTask):
         self._init_joint_settings(env)
         self._init_bodies(env["asset"])
         self._init_buffers(env)
-        self._init_sensor_terms(env.get("observeSensors"))
         self._init_rewards(env["rewards"])
         if self.terrain is not None:
             self._init_terrain_state()
@@ -81,8 +79,8 @@ class LeggedTask(VecTask):
                                  "env.plane.enabled: True (env.plane.friction is the terrain's friction)")
             request.terrain = self.terrain
             t = self.terrain_settings
-            self.height_scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
-            request.sensors = (*request.sensors, self.height_scan)
+            scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
+            request.sensors = (*request.sensors, scan)
         return request
 
     # ----------------------------------------------------------------- terrain
@@ -119,7 +117,8 @@ class LeggedTask(VecTask):
     def _init_terrain_state(self) -> None:
         """Per-env cells, curriculum levels, the device height map and the height-scan points."""
         n, dev, t, cfg = self.num_envs, self.device, self.terrain_settings, self.terrain.config
-        self.height_map = self.height_scan.height_map  # what MuJoCo collides with, read back from the model
+        # What MuJoCo collides with, read back from the model: the height scan's lookup of any point (sim/sensors.py).
+        self.height_map = self.sim.sensors.get("height_scan").height_map
         self.terrain_origins = torch.tensor(self.terrain.origins, device=dev, dtype=torch.float)
         self.num_levels = cfg.numLevels
         self.cell_length = cfg.mapLength
@@ -234,19 +233,6 @@ class LeggedTask(VecTask):
         self._base_mass = self.sim.model_field("body_mass")[:, self.base_body:self.base_body + 1]
         self._nominal_base_mass = float(self.sim.mj_model.body_mass[self.base_body])
 
-    def _init_sensor_terms(self, cfg) -> None:
-        """``env.observeSensors``: {sensor name: scale}. Each sensor of the model (an ``env.sensors`` entry such as
-        an IMU, an MJCF sensor, ``contact_forces``) becomes a policy observation term of its name, after the others:
-        its view's values, flattened, times the scale. Empty (the default): the observation is unchanged."""
-        key = "env.observeSensors"
-        if cfg is not None and not hasattr(cfg, "items"):
-            raise ConfigError(f"{key}={cfg!r} is invalid: give a mapping {{sensor name: scale}}, e.g. {{imu: 1.0}}")
-        self._sensor_terms = []
-        for name, scale in (cfg or {}).items():
-            view = self.sim.sensor(str(name), key=f"{key}.{name}")
-            self._sensor_terms.append(ObsTerm(str(name), int(view[0].numel()), real_number(scale, f"{key}.{name}"),
-                                              compute=lambda view=view: view.flatten(1)))
-
     def _init_rewards(self, rew: dict) -> None:
         scales = dict(rew["scales"])
         self.tracking_sigma = float(rew.get("trackingSigma", 0.25))
@@ -288,7 +274,7 @@ class LeggedTask(VecTask):
             ObsTerm("dof_vel", nj, s["dofVel"], compute=lambda: self.sim.dof_vel),
             # the action the drives received (delayed, if delayed)
             ObsTerm("actions", nj, compute=lambda: self.actions),
-        ] + scan + self._sensor_terms
+        ] + scan
 
     def _height_scan_term(self) -> ObsTerm:
         return ObsTerm("height_scan", self.measured_heights.shape[1], self.obs_scales["heightMeasurements"],
@@ -299,9 +285,10 @@ class LeggedTask(VecTask):
         return (self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights).clamp(-1.0, 1.0)
 
     def state_terms(self) -> list[ObsTerm]:
-        # The critic sees the noiseless policy observation plus what the policy cannot measure.
+        # The critic sees the noiseless policy observation (the observed sensors' terms included, env.observeSensors)
+        # plus what the policy cannot measure.
         n = self.num_envs
-        policy = [replace(t, noise=0.0) for t in self.observation_terms()]
+        policy = [replace(t, noise=0.0) for t in self.observation_terms() + self.observations.sensor_terms]
         return policy + [
             ObsTerm("ground_friction", 1, compute=lambda: self._ground_friction.expand(n, 1)),
             ObsTerm("added_base_mass", 1, compute=lambda: (self._base_mass - self._nominal_base_mass).expand(n, 1)),

@@ -43,18 +43,15 @@ class ShadowHand(InHandTask):
     observation_types = ("openai", "full_no_vel", "full", "full_state")
 
     def bind_hand(self) -> None:
-        sim, m = self.sim, self.sim.mj_model
+        sim = self.sim
         missing = [name for name in FINGERTIPS if name not in sim.body_names]
         if missing:
             raise ConfigError(f"env.asset.assetFileName={self.cfg['env']['asset']['assetFileName']!r}: the hand has "
                               f"no fingertip bodies {missing}; ShadowHand observes {list(FINGERTIPS)}")
         self.fingertip_ids = sim.body_ids(list(FINGERTIPS))
-        columns = []
-        for name in FINGERTIPS:
-            for kind in ("force", "torque"):
-                sensor = m.sensor(f"{name}_{kind}")
-                columns += range(int(sensor.adr[0]), int(sensor.adr[0]) + 3)
-        self.fingertip_sensor_columns = torch.tensor(columns, dtype=torch.long, device=self.device)
+        # Each fingertip's force then torque sensor (N, 3 each), fingertip by fingertip.
+        self.fingertip_sensors = [sim.sensor(f"{name}_{kind}", key="env.asset.assetFileName")
+                                  for name in FINGERTIPS for kind in ("force", "torque")]
 
     def _terms_of(self, kind: str) -> list[ObsTerm]:
         n_tips = len(FINGERTIPS)
@@ -69,7 +66,7 @@ class ShadowHand(InHandTask):
             tips = [ObsTerm("fingertip_state", 13 * n_tips, compute=self._fingertip_state)]
         if kind == "full_state":
             tips.append(ObsTerm("fingertip_force_torque", 6 * n_tips, FORCE_OBS_SCALE,  # N, N m: force then torque
-                                compute=lambda: self.sim.sensordata[:, self.fingertip_sensor_columns]))
+                                compute=lambda: torch.cat(self.fingertip_sensors, dim=1)))
         return (self._joint_terms(kind) + self._object_terms(kind) + self._goal_terms() + tips
                 + [self._action_term()])
 

@@ -12,7 +12,7 @@ import torch
 
 from isaacgymenvs_mw.sim import check_sim_keys, match_joint_numbers
 from isaacgymenvs_mw.tasks.base.history import HistorySpec, parse_history
-from isaacgymenvs_mw.utils.config import whole_number
+from isaacgymenvs_mw.utils.config import real_number, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # Episode-length keys of earlier versions and of IsaacGymEnvs' tasks (policy steps): refused, naming the new key.
@@ -34,6 +34,7 @@ class TaskSettings:
     render_interval: int  # env.renderInterval
     action_delay: int  # env.control.actionDelay (policy steps)
     overflow_check_interval: int  # sim.overflowCheckInterval
+    observe_sensors: dict[str, float]  # env.observeSensors: {sensor name: scale}
 
 
 def task_settings(config: Mapping, declares_layout: bool) -> TaskSettings:
@@ -54,11 +55,21 @@ def task_settings(config: Mapping, declares_layout: bool) -> TaskSettings:
         render_interval=require_int(env, "renderInterval", minimum=1, default=1),
         action_delay=whole_number(env.get("control", {}).get("actionDelay", 0), "env.control.actionDelay", 0),
         overflow_check_interval=int(config.get("sim", {}).get("overflowCheckInterval", 500)),
+        observe_sensors=observed_sensors(env.get("observeSensors")),
     )
     check_sim_keys(config.get("sim", {}))
     warn_unused_ige_keys(env)
     return settings
 
+
+
+def observed_sensors(cfg: Mapping | None) -> dict[str, float]:
+    """``env.observeSensors``: {sensor name: scale}, the sensors every task observes after its own terms (whether
+    each is a sensor of the model is checked once the model is built). Empty or absent: none."""
+    key = "env.observeSensors"
+    if cfg is not None and not hasattr(cfg, "items"):
+        raise ConfigError(f"{key}={cfg!r} is invalid: give a mapping {{sensor name: scale}}, e.g. {{imu: 1.0}}")
+    return {str(name): real_number(scale, f"{key}.{name}") for name, scale in (cfg or {}).items()}
 
 def joint_velocity_clamp(env: Mapping, dof_names: list[str], device: str) -> torch.Tensor | None:
     """``env.control.velocityClamp`` ({joint or regex: speed}, or one number for every joint) as a (joints,) tensor

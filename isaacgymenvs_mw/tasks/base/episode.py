@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import torch
 
-from isaacgymenvs_mw.sim.stability import BlowupLog
+from isaacgymenvs_mw.sim.blowup import BlowupLog
 
 
 class EpisodeBuffer:

@@ -8,7 +8,7 @@ exported policy carries. It knows nothing of the task: VecTask gives it the size
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import gymnasium as gym
 import numpy as np
@@ -17,6 +17,9 @@ import torch
 from isaacgymenvs_mw.tasks.base.history import HistorySpec, ImageStack, ObsHistory
 from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ImageTerm, ObsLayout, ObsTerm
 from isaacgymenvs_mw.utils.errors import ConfigError
+
+if TYPE_CHECKING:  # the simulator's sensor registry, whose cameras the image terms read
+    from isaacgymenvs_mw.sim.sensor_registry import SensorRegistry
 
 
 def _box(size: int) -> gym.spaces.Box:
@@ -39,14 +42,18 @@ class Observations:
         history: ``env.history``, parsed.
         term_noise: gives the policy layout the randomisation layer's per-term noise.
         image_terms: the task's image terms (None: no image observation).
-        cameras: the simulator's cameras (``sim.cameras``), which the image terms read.
+        sensors: the simulator's sensor registry (``sim.sensors``), whose cameras the image terms read.
+        sensor_terms: the terms of ``env.observeSensors`` (``observations.sensor_terms``): appended to the policy
+            terms, and to the critic's state terms where these do not hold them already (noiseless there).
     """
 
     def __init__(self, task: str, num_envs: int, device: str, rl_device: str, num_obs: int, num_states: int | None,
                  clip: float, history: dict[str, HistorySpec], term_noise: Callable[[ObsLayout], ObsLayout],
-                 image_terms: list[ImageTerm] | None, cameras: Any | None) -> None:
+                 image_terms: list[ImageTerm] | None, sensors: SensorRegistry,
+                 sensor_terms: list[ObsTerm] = ()) -> None:
         self.task, self.num_envs, self.device, self.rl_device = task, num_envs, device, rl_device
         self.clip, self.history, self._term_noise = clip, history, term_noise
+        self.sensor_terms = list(sensor_terms)
         self._yaml_num_obs, self._yaml_num_states = num_obs, num_states
         self.num_obs, self.num_states = num_obs, num_states or 0
         self.obs_layout: ObsLayout | None = None
@@ -54,7 +61,7 @@ class Observations:
         self.obs_history: ObsHistory | None = None
         self.state_history: ObsHistory | None = None
         self.built = False
-        self.images = ImageGroup(image_terms, cameras) if image_terms else None
+        self.images = ImageGroup(image_terms, sensors) if image_terms else None
         if "camera" in history and self.images is None:
             raise ConfigError("env.history.camera needs image observation terms; this task declares none "
                               "(image_terms())")
@@ -70,7 +77,17 @@ class Observations:
 
     def build(self, obs_terms: list[ObsTerm] | None, state_terms: list[ObsTerm] | None) -> None:
         """Derive the layouts and sizes from the declared terms (a YAML size must agree), then the buffers, spaces
-        and history of those sizes (before the first step, so before any capture)."""
+        and history of those sizes (before the first step, so before any capture). The observed sensors' terms
+        (``sensor_terms``) come after the task's own."""
+        if self.sensor_terms:
+            if obs_terms is None:
+                raise ConfigError(f"env.observeSensors={[t.name for t in self.sensor_terms]}: this task fills its "
+                                  "observation itself (no observation_terms()); observe the sensors there, or set "
+                                  "env.observeSensors: {}")
+            obs_terms = [*obs_terms, *self.sensor_terms]
+            if state_terms:
+                held = {t.name for t in state_terms}
+                state_terms = [*state_terms, *(t for t in self.sensor_terms if t.name not in held)]
         if obs_terms is not None:
             self.obs_layout = self._term_noise(ObsLayout(obs_terms))
             if self._yaml_num_obs:

@@ -9,11 +9,15 @@ description an exported policy carries.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Mapping, Sequence
 
 import torch
 
+from isaacgymenvs_mw.sim.cameras import CHANNELS, CameraSpec
 from isaacgymenvs_mw.utils.errors import ConfigError
+
+if TYPE_CHECKING:  # the simulator's sensor registry, which the image terms read
+    from isaacgymenvs_mw.sim.sensor_registry import SensorRegistry
 
 
 @dataclass(frozen=True)
@@ -34,6 +38,17 @@ class ObsTerm:
     scale: float = 1.0
     noise: float = 0.0
     compute: Callable[[], torch.Tensor] | None = field(default=None, compare=False, repr=False)
+
+
+def sensor_terms(sensor: Callable[..., torch.Tensor], scales: Mapping[str, float]) -> list[ObsTerm]:
+    """One term per observed sensor (``env.observeSensors``: {name: scale}): the sensor's view (``sensor``: the
+    simulator's ``sim.sensor``), flattened, times the scale; named as the sensor. A name that is no sensor of the
+    model fails naming ``env.observeSensors.<name>``."""
+    terms = []
+    for name, scale in scales.items():
+        view = sensor(name, key=f"env.observeSensors.{name}")
+        terms.append(ObsTerm(name, int(view[0].numel()), scale, compute=lambda view=view: view.flatten(1)))
+    return terms
 
 
 class ObsLayout:
@@ -83,7 +98,7 @@ class ObsLayout:
         return [{**{k: getattr(t, k) for k in described}, "start": self.slices[t.name].start} for t in self.terms]
 
 
-IMAGE_OUTPUTS = {"rgb": 3, "depth": 1}  # camera outputs an image term may observe, and their channels
+IMAGE_OUTPUTS = ("rgb", "depth")  # camera outputs an image term may observe (their channels: sim/cameras.py)
 
 
 @dataclass(frozen=True)
@@ -103,20 +118,20 @@ class ImageTerm:
 
     @property
     def channels(self) -> int:
-        return IMAGE_OUTPUTS[self.output]
+        return CHANNELS[self.output]
 
 
-def camera_terms(cameras: Any | None) -> list[ImageTerm]:
+def camera_terms(cameras: Mapping[str, CameraSpec] | None) -> list[ImageTerm]:
     """Image terms for every observable output (rgb, depth) of every ``env.cameras`` entry (``cameras``: the
     simulator's ``sim.cameras``), in YAML order: what the YAML declares is what the policy sees, so a camera and its
     outputs are named once. A term is named by its output, prefixed by ``<camera>_`` when there are several cameras."""
-    cameras = cameras.views if cameras is not None else {}
+    cameras = dict(cameras or {})
     if not cameras:
         raise ConfigError("this task observes its cameras, but env.cameras declares none; declare one: "
                           "env.cameras.<name>: {pos, lookAt, width, height, outputs: [rgb]}")
     prefix = len(cameras) > 1
     return [ImageTerm(f"{name}_{output}" if prefix else output, camera=name, output=output)
-            for name, view in cameras.items() for output in view.outputs if output in IMAGE_OUTPUTS]
+            for name, camera in cameras.items() for output in camera.outputs if output in IMAGE_OUTPUTS]
 
 
 class ImageGroup:
@@ -126,13 +141,14 @@ class ImageGroup:
     (``learning/models.py``). Every term must come from a camera of the same width and height.
     """
 
-    def __init__(self, terms: Sequence[ImageTerm], cameras: Any | None) -> None:
+    def __init__(self, terms: Sequence[ImageTerm], sensors: SensorRegistry) -> None:
         names = [t.name for t in terms]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
             raise ConfigError(f"image observation terms {duplicates} appear more than once; names must be unique")
-        cameras = cameras.views if cameras is not None else {}  # the simulator's sim.cameras
-        self.sources = []
+        cameras = sensors.cameras
+        self.sources = []  # each term's camera
+        self.images = []  # each term's (num_envs, C, H, W) view: the camera sensor's output
         for t in terms:
             if t.output not in IMAGE_OUTPUTS:
                 raise ConfigError(f"image observation term '{t.name}': output '{t.output}' is not one of "
@@ -146,6 +162,7 @@ class ImageGroup:
                                   f"'{t.camera}', but env.cameras.{t.camera}.outputs={list(view.outputs)} does not "
                                   f"render it; add {t.output} to env.cameras.{t.camera}.outputs")
             self.sources.append(view)
+            self.images.append(sensors.view(t.camera, f"image observation term '{t.name}'", t.output))
         sizes = {(v.height, v.width) for v in self.sources}
         if len(sizes) != 1:
             listing = {t.camera: f"{v.width}x{v.height}" for t, v in zip(terms, self.sources)}
@@ -161,12 +178,12 @@ class ImageGroup:
         """Write the cameras' current images into ``out`` ((num_envs, C, H, W) uint8, e.g. the newest slot of a
         frame stack; device work only); returns it."""
         start = 0
-        for term, view in zip(self.terms, self.sources):
+        for term, camera, image in zip(self.terms, self.sources, self.images):
             part = out[:, start:start + term.channels]
             if term.output == "rgb":
-                part.copy_(view.rgb)
+                part.copy_(image)
             else:
-                part.copy_(torch.round(view.depth * (255.0 / view.depth_far)).clamp_(0.0, 255.0))
+                part.copy_(torch.round(image * (255.0 / camera.depth_far)).clamp_(0.0, 255.0))
             start += term.channels
         return out
 

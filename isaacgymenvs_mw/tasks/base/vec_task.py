@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from isaacgymenvs_mw.sim import ModelRequest, Simulator, sim_dt
-from isaacgymenvs_mw.sim.stability import BlowupLog
+from isaacgymenvs_mw.sim.blowup import BlowupLog
 from isaacgymenvs_mw.tasks.base.contract import check_actuator_count, check_required_hooks, hook_message
 from isaacgymenvs_mw.tasks.base.display import Display
 from isaacgymenvs_mw.tasks.base.env_keys import episode_length, joint_velocity_clamp, task_settings
@@ -35,7 +35,7 @@ from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
 from isaacgymenvs_mw.tasks.base.ige_surface import IGESurface
 from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_groups import Observations
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm
+from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm, sensor_terms
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
@@ -94,7 +94,8 @@ class VecTask(IGESurface):
         self.headless = self.display.headless
         self.observations = Observations(
             type(self).__name__, self.num_envs, self.device, self.rl_device, settings.num_obs, settings.num_states,
-            self.clip_obs, settings.history, self.randomizer.with_term_noise, self.image_terms(), self.sim.cameras)
+            self.clip_obs, settings.history, self.randomizer.with_term_noise, self.image_terms(), self.sim.sensors,
+            sensor_terms(self.sim.sensor, settings.observe_sensors))
         self.allocate_buffers()
         # Warp's kernels have been compiling in the background since create_sim: wait for them now, or, with a compiled
         # step, at the first step, while the step compiles (StepExecution.run).
