@@ -10,6 +10,7 @@ weights, same random numbers: SyncFreePPO with the options must train to the sam
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -236,6 +237,38 @@ def test_clamped_normaliser_checkpoints_load_into_plain_ones():
     torch.testing.assert_close(plain.actor.obs_normalizer._mean, clipped.actor.obs_normalizer._mean)
 
 
+@pytest.mark.parametrize("clip", [None, 5.0])
+def test_rl_games_obs_normalization_form_divides_by_the_root_of_variance_plus_1e_5(clip):
+    """rl_games' RunningMeanStd: (x - mean) / sqrt(var + 1e-5), written here with numpy; the exported policy.pt too."""
+    alg = build(SYNC_FREE, obs_normalization_form="rl_games", obs_normalization_clip=clip)
+    g = torch.Generator().manual_seed(5)
+    fed = torch.randn(512, OBS, generator=g) * torch.tensor([1e-3, 0.01, 0.05, 0.3, 2.0, 10.0]) + 0.5
+    for model in (alg.actor, alg.critic):
+        model.obs_normalizer.update(fed)
+    data = fed.double().numpy()
+    probe = torch.randn(64, OBS, generator=g) * 0.2 + 0.5
+    expected = (probe.double().numpy() - data.mean(axis=0)) / np.sqrt(data.var(axis=0) + 1e-5)
+    if clip is not None:
+        expected = np.clip(expected, -clip, clip)
+    for model in (alg.actor, alg.critic):
+        # float32 statistics: a mean of 0.5 with a spread of 1e-3 carries ~1e-3 relative rounding after scaling
+        np.testing.assert_allclose(model.obs_normalizer(probe).double().numpy(), expected, rtol=2e-3, atol=1e-4)
+    # the two forms differ most where the spread is near rsl-rl-lib's 1e-2: std 0.01 is halved by std + 1e-2
+    plain = (probe.double().numpy() - data.mean(axis=0)) / (data.std(axis=0) + 1e-2)
+    assert not np.allclose(plain[:, 1], expected[:, 1], rtol=0.2)
+    scripted = torch.jit.script(alg.get_policy().as_jit())
+    with torch.no_grad():
+        torch.testing.assert_close(scripted(probe), alg.actor(TensorDict({"policy": probe}, batch_size=[64])))
+
+
+def test_rl_games_obs_normalization_form_trains_and_checkpoints_load_into_plain_ones():
+    shaped, plain = build(SYNC_FREE, obs_normalization_form="rl_games"), build(SYNC_FREE)
+    history = train(shaped, 2, data_seed=4)
+    assert all(math.isfinite(v) for step in history for v in step.values())
+    plain.load(shaped.save(), None, strict=True)
+    torch.testing.assert_close(plain.actor.obs_normalizer._var, shaped.actor.obs_normalizer._var)
+
+
 # ---------------------------------------------------------------------------------------------------- bad settings
 
 @pytest.mark.parametrize(("settings", "message"), [
@@ -245,6 +278,8 @@ def test_clamped_normaliser_checkpoints_load_into_plain_ones():
     ({"grad_clip_scope": "all"}, r"train\.algorithm\.grad_clip_scope='all' is invalid: choose one of "
                                  r"\['per_network', 'global'\]"),
     ({"obs_normalization_clip": 0.0}, r"train\.algorithm\.obs_normalization_clip=0\.0 is invalid: give a number > 0\.0"),
+    ({"obs_normalization_form": "exact"},
+     r"train\.algorithm\.obs_normalization_form='exact' is invalid: choose one of \['rsl_rl', 'rl_games'\]"),
     ({"kl_schedule": "per_epoch", "schedule": "fixed"},
      r"train\.algorithm\.kl_schedule='per_epoch' has no effect: the learning rate moves only with "
      r"train\.algorithm\.schedule=adaptive and a train\.algorithm\.desired_kl \(got schedule='fixed', "
@@ -256,12 +291,15 @@ def test_bad_settings_name_the_key(settings, message):
         build(SYNC_FREE, **settings)
 
 
-def test_obs_normalization_clip_without_normalisers_is_refused():
+@pytest.mark.parametrize(("setting", "shown"), [({"obs_normalization_clip": 5.0}, "obs_normalization_clip=5.0"),
+                                               ({"obs_normalization_form": "rl_games"},
+                                                "obs_normalization_form='rl_games'")])
+def test_obs_normalization_options_without_normalisers_are_refused(setting, shown):
     from test_ppo import FakeEnv, train_cfg
 
-    cfg = train_cfg(SYNC_FREE, obs_normalization_clip=5.0)
+    cfg = train_cfg(SYNC_FREE, **setting)
     cfg["actor"]["obs_normalization"] = cfg["critic"]["obs_normalization"] = False
-    with pytest.raises(ConfigError, match=r"^train\.algorithm\.obs_normalization_clip=5\.0 has no effect: neither "
+    with pytest.raises(ConfigError, match=rf"^train\.algorithm\.{re.escape(shown)} has no effect: neither "
                                           r"train\.actor\.obs_normalization nor train\.critic\.obs_normalization"):
         PPO.construct_algorithm(observations(torch.Generator().manual_seed(1)), FakeEnv(), cfg, "cpu")
 

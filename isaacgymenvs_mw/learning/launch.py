@@ -315,10 +315,19 @@ def _mlp_widths(weights: dict) -> list[int]:
     return [width for _, width in layers[:-1]]
 
 
+SHARED_VALUE_HEAD = "value_head.weight"  # in critic_state_dict: the critic was a shared trunk's value head
+
+
 def check_network_sizes(runner: Runner, state: dict, checkpoint: Path) -> None:
     """The checkpoint's networks have the layer sizes the train config builds; else name the first layer that
     differs and the config key that sets it (rsl-rl-lib would stop with a page of 'size mismatch' lines)."""
     built = runner.alg.save()
+    shared = {name: SHARED_VALUE_HEAD in d.get("critic_state_dict", {})
+              for name, d in (("mine", built), ("saved", state))}
+    if "critic_state_dict" in state and shared["mine"] != shared["saved"]:
+        raise ConfigError(f"checkpoint='{checkpoint}' was trained with train.algorithm.share_trunk={shared['saved']}, "
+                          f"this run builds share_trunk={shared['mine']}: give "
+                          f"+train.algorithm.share_trunk={shared['saved']}")
     for part in ("actor", "critic"):
         mine, saved = built.get(f"{part}_state_dict", {}), state.get(f"{part}_state_dict", {})
         for name, tensor in saved.items():

@@ -26,130 +26,22 @@ from rsl_rl.algorithms import PPO
 from rsl_rl.modules import EmpiricalNormalization
 from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
+from rsl_rl.utils import resolve_class, resolve_obs_groups
 from tensordict import TensorDict
 
-from isaacgymenvs_mw.learning.train_config import GRAD_CLIP_SCOPES, KL_FORMS, KL_SCHEDULES
+# The normalisers and loss terms have modules of their own; their names stay importable from here too.
+from isaacgymenvs_mw.learning.models import SharedTrunkCritic
+from isaacgymenvs_mw.learning.normalizers import (VALUE_NORMALIZER_KEY, ClippedEmpiricalNormalization,
+                                                  ValueNormalizer, _RealUnitCritic)
+from isaacgymenvs_mw.learning.ppo_losses import bounds_loss, rl_games_kl
+from isaacgymenvs_mw.learning.train_config import (GRAD_CLIP_SCOPES, KL_FORMS, KL_SCHEDULES,
+                                                   OBS_NORMALIZATION_FORMS)
 from isaacgymenvs_mw.utils.config import boolean, one_of, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants (bounds: the defaults)
 EAGER_UPDATES_BEFORE_CAPTURE = 1
 
-
-# rl_games' soft bound on the action means: outside +-1.1 a mean costs its squared excess (its bounds_loss).
-SOFT_BOUND = 1.1
-
-
-def bounds_loss(mean: torch.Tensor, soft_bound: float = SOFT_BOUND) -> torch.Tensor:
-    """rl_games' bounds loss (IsaacGymEnvs' PPO configs, ``bounds_loss_coef``): per sample the sum over actions of
-    the squared distance of each action mean beyond +-``soft_bound``, averaged over the batch. Actions are clipped to
-    [-1, 1] by the env, so a mean far outside gets no gradient from the surrogate; this pulls it back."""
-    above = torch.clamp(mean - soft_bound, min=0.0)
-    below = torch.clamp(mean + soft_bound, max=0.0)
-    return (above.pow(2) + below.pow(2)).sum(dim=-1).mean()
-
-
-# rl_games' policy_kl (rl_games/algos_torch/torch_ext.py) adds this to the std ratio inside its log and to the old
-# variance in its denominator.
-RL_GAMES_KL_EPS = 1e-5
-
-
-def rl_games_kl(old_mean: torch.Tensor, old_std: torch.Tensor, new_mean: torch.Tensor,
-                new_std: torch.Tensor) -> torch.Tensor:
-    """rl_games' KL divergence per sample, summed over actions: KL(new || old) of diagonal Gaussians with 1e-5 in
-    the log's ratio and in the old variance. Where the old std has collapsed (s**2 comparable to 1e-5) the terms
-    shrink by about s**2 / (s**2 + 1e-5), so one action whose noise has collapsed does not dominate the sum the way
-    it does in the exact KL, which rsl-rl-lib measures (KL(old || new), ``GaussianDistribution.kl_divergence``)."""
-    log_ratio = torch.log(old_std / new_std + RL_GAMES_KL_EPS)
-    spread = (new_std.square() + (old_mean - new_mean).square()) / (2.0 * (old_std.square() + RL_GAMES_KL_EPS))
-    return (log_ratio + spread - 0.5).sum(dim=-1)
-
-
-class ClippedEmpiricalNormalization(EmpiricalNormalization):
-    """rsl-rl-lib's observation normaliser whose output is clamped to +-``clip``, as rl_games' RunningMeanStd clamps
-    normalised inputs to +-5: one observation far outside what the statistics have seen (a contact spike, a cube
-    flung away) then cannot feed the first layer a value of hundreds. Same buffers as the normaliser it replaces, so
-    checkpoints load either way; exported policies (ONNX, TorchScript) copy it, clamp included."""
-
-    def __init__(self, source: EmpiricalNormalization, clip: float) -> None:
-        super().__init__(tuple(source._mean.shape[1:]), eps=source.eps, until=source.until)
-        self.to(source._mean.device)
-        self.load_state_dict(source.state_dict())
-        self.clip = clip
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        # written out rather than calling the parent's: TorchScript (the exported policy.pt) has no super()
-        return ((x - self._mean) / (self._std + self.eps)).clamp(-self.clip, self.clip)
-
-
-# rl_games' RunningMeanStd (rl_games/algos_torch/running_mean_std.py): variance epsilon, and the clamp of normalised
-# values (and of the critic's output before it is un-normalised) to +-5 standard deviations.
-VALUE_NORM_EPS = 1e-5
-VALUE_NORM_CLAMP = 5.0
-VALUE_NORMALIZER_KEY = "value_normalizer_state_dict"  # the statistics' checkpoint key
-
-
-class ValueNormalizer(torch.nn.Module):
-    """rl_games' ``value_mean_std``: running mean and variance of scalar values and returns (float64, in place).
-
-    Starts like rl_games' RunningMeanStd (mean 0, variance 1, count 1) and merges each batch's moments with Chan's
-    parallel formula. The statistics are buffers updated with ``copy_`` and ``torch.where`` on the device, never
-    replaced and never read on the host, so anything holding them (a checkpoint being written, the rollout's
-    un-normalisation) sees the same tensors. SyncFreePPO updates them before the mini-batches, outside a captured
-    update, which only reads the storage that they normalise. With ``torch.distributed``
-    initialised, the batch moments are those of every rank's batch together (all-reduced), so the ranks keep
-    identical statistics, as rsl-rl-lib's EmpiricalNormalization does for observations.
-    """
-
-    def __init__(self, device: str | torch.device) -> None:
-        super().__init__()
-        self.register_buffer("running_mean", torch.zeros((), dtype=torch.float64, device=device))
-        self.register_buffer("running_var", torch.ones((), dtype=torch.float64, device=device))
-        self.register_buffer("count", torch.ones((), dtype=torch.float64, device=device))
-
-    def normalize(self, values: torch.Tensor) -> torch.Tensor:
-        """Real units -> the critic's units, clamped to +-5 like rl_games."""
-        scaled = (values.double() - self.running_mean) / torch.sqrt(self.running_var + VALUE_NORM_EPS)
-        return scaled.clamp(-VALUE_NORM_CLAMP, VALUE_NORM_CLAMP).to(values.dtype)
-
-    def denormalize(self, values: torch.Tensor) -> torch.Tensor:
-        """The critic's units -> real units; rl_games clamps the critic's output to +-5 first."""
-        clamped = values.double().clamp(-VALUE_NORM_CLAMP, VALUE_NORM_CLAMP)
-        return (clamped * torch.sqrt(self.running_var + VALUE_NORM_EPS) + self.running_mean).to(values.dtype)
-
-    @torch.no_grad()
-    def update(self, *batches: torch.Tensor) -> None:
-        """Merge each batch into the statistics, in the order given (rl_games: the rollout's values, then returns).
-
-        A batch whose moments are not finite (a blown-up world's return) leaves the statistics as they were:
-        one NaN merged in would make every later value target NaN.
-        """
-        batches = tuple(b.double() for b in batches)
-        means = torch.stack([b.mean() for b in batches])
-        counts = [float(b.numel()) for b in batches]  # host numbers: the sizes are known without a GPU read
-        if torch.distributed.is_available() and torch.distributed.is_initialized():
-            # The global mean first, then the spread around it (rsl-rl-lib's EmpiricalNormalization). Every rank's
-            # storage has the same shape, so each batch counts world_size times its local size.
-            world = torch.distributed.get_world_size()
-            torch.distributed.all_reduce(means)
-            means /= world
-            spreads = torch.stack([(b - m).square().mean() for b, m in zip(batches, means)])
-            torch.distributed.all_reduce(spreads)
-            variances = spreads / world
-            counts = [c * world for c in counts]
-        else:
-            variances = torch.stack([b.var(unbiased=False) for b in batches])
-        for batch_mean, batch_var, batch_count in zip(means, variances, counts):
-            # Chan et al.'s parallel merge: rl_games' _update_mean_var_count_from_moments
-            total = self.count + batch_count
-            delta = batch_mean - self.running_mean
-            new_mean = self.running_mean + delta * batch_count / total
-            m2 = (self.running_var * self.count + batch_var * batch_count
-                  + delta.square() * self.count * batch_count / total)
-            finite = torch.isfinite(batch_mean) & torch.isfinite(batch_var)
-            self.running_mean.copy_(torch.where(finite, new_mean, self.running_mean))
-            self.running_var.copy_(torch.where(finite, m2 / total, self.running_var))
-            self.count.copy_(torch.where(finite, total, self.count))
 
 
 class SyncFreePPO(PPO):
@@ -197,12 +89,15 @@ class SyncFreePPO(PPO):
       (rsl-rl-lib); ``global`` clips them together, as rl_games clips its one shared network.
     * ``obs_normalization_clip``: ``None``, or clamp the normalised observations of every model with
       ``obs_normalization`` to +-this (rl_games: 5, ``ClippedEmpiricalNormalization``).
+    * ``obs_normalization_form``: ``rsl_rl`` ((x - mean) / (std + 1e-2)) or ``rl_games`` ((x - mean) /
+      sqrt(var + 1e-5)), for every model with ``obs_normalization``.
     """
 
     def __init__(self, *args, capture_update: bool | str = "auto", bounds_loss_coef: float = 0.0,
                  normalize_value: bool = False, learning_rate_min: float = LR_MIN, learning_rate_max: float = LR_MAX,
                  kl_schedule: str = KL_SCHEDULES[0], kl_form: str = KL_FORMS[0],
                  grad_clip_scope: str = GRAD_CLIP_SCOPES[0], obs_normalization_clip: float | None = None,
+                 obs_normalization_form: str = OBS_NORMALIZATION_FORMS[0],
                  **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.learning_rate_min, self.learning_rate_max = self._check_rate_bounds(learning_rate_min, learning_rate_max)
@@ -214,7 +109,7 @@ class SyncFreePPO(PPO):
         if self.kl_form == "rl_games":
             self._need_gaussian("train.algorithm.kl_form=rl_games", "its KL is written for a mean and a std")
         self.grad_clip_scope = one_of(grad_clip_scope, "train.algorithm.grad_clip_scope", GRAD_CLIP_SCOPES)
-        self._clip_observations(obs_normalization_clip)
+        self._shape_observations(obs_normalization_clip, obs_normalization_form)
         self.bounds_loss_coef = real_number(bounds_loss_coef, "train.algorithm.bounds_loss_coef", low=0)
         self.normalize_value = boolean(normalize_value, "train.algorithm.normalize_value")
         self.value_normalizer = ValueNormalizer(self.device) if self.normalize_value else None
@@ -265,6 +160,38 @@ class SyncFreePPO(PPO):
         self._kl_reference: tuple[torch.Tensor, ...] | None = None
         self._install_device_learning_rate()
 
+    @staticmethod
+    def construct_algorithm(obs: TensorDict, env, cfg: dict, device: str) -> PPO:
+        """rsl-rl-lib's construction; with ``algorithm.share_trunk`` the critic is the value head of the actor's
+        trunk (``SharedTrunkCritic``, rl_games' ``separate: False``) instead of the ``critic`` section's model."""
+        if "share_trunk" not in cfg["algorithm"]:
+            return PPO.construct_algorithm(obs, env, cfg, device)
+        algorithm = dict(cfg["algorithm"])
+        share = boolean(algorithm.pop("share_trunk"), "train.algorithm.share_trunk")
+        built = {**cfg, "algorithm": algorithm}
+        if share:
+            groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
+            if list(groups["critic"]) != list(groups["actor"]):
+                raise ConfigError(
+                    f"train.algorithm.share_trunk=True needs train.runner.obs_groups.critic equal to "
+                    f"train.runner.obs_groups.actor (the value reads the policy's trunk), got "
+                    f"{list(groups['critic'])} and {list(groups['actor'])}; give "
+                    f"train.runner.obs_groups.critic={list(groups['actor'])}")
+            # rsl-rl-lib builds the actor, then the critic from the class its section names: the actor is kept on
+            # the way so that the critic can be its value head.
+            actor_class, actor_cfg = resolve_class(dict(cfg["actor"]))
+            models: list = []
+
+            def actor(*args, **kwargs):
+                models.append(actor_class(*args, **kwargs))
+                return models[0]
+
+            built["actor"] = {**actor_cfg, "class_name": actor}
+            built["critic"] = {"class_name": lambda *args, **kwargs: SharedTrunkCritic(models[0])}
+        alg = PPO.construct_algorithm(obs, env, built, device)
+        cfg["obs_groups"] = built["obs_groups"]  # resolved in place by rsl-rl-lib, which the runner reads after
+        return alg
+
     @property
     def _adaptive(self) -> bool:
         return self.desired_kl is not None and self.schedule == "adaptive"
@@ -281,19 +208,26 @@ class SyncFreePPO(PPO):
         if not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
             raise ConfigError(f"{setting} needs a Gaussian action distribution (train.actor.distribution_cfg): {why}")
 
-    def _clip_observations(self, clip) -> None:
-        """``obs_normalization_clip``: swap each model's observation normaliser for one that clamps its output."""
-        key = "train.algorithm.obs_normalization_clip"
-        if clip is None:
+    def _shape_observations(self, clip, form: str) -> None:
+        """``obs_normalization_clip`` and ``obs_normalization_form``: swap each model's observation normaliser for one
+        that clamps its output and/or normalises as rl_games does."""
+        keys = {"clip": "train.algorithm.obs_normalization_clip", "form": "train.algorithm.obs_normalization_form"}
+        form = one_of(form, keys["form"], OBS_NORMALIZATION_FORMS)
+        if clip is not None:
+            clip = real_number(clip, keys["clip"], 0.0, low_open=True)
+        given = [(keys["clip"], clip)] if clip is not None else []
+        given += [(keys["form"], form)] if form != OBS_NORMALIZATION_FORMS[0] else []
+        if not given:
             return
-        clip = real_number(clip, key, 0.0, low_open=True)
         models = [m for m in (self._raw_actor, self._raw_critic)
                   if isinstance(getattr(m, "obs_normalizer", None), EmpiricalNormalization)]
         if not models:
-            raise ConfigError(f"{key}={clip!r} has no effect: neither train.actor.obs_normalization nor "
+            key, value = given[0]
+            raise ConfigError(f"{key}={value!r} has no effect: neither train.actor.obs_normalization nor "
                               "train.critic.obs_normalization is True; remove it or turn one on")
         for model in models:
-            model.obs_normalizer = ClippedEmpiricalNormalization(model.obs_normalizer, clip)
+            model.obs_normalizer = ClippedEmpiricalNormalization(model.obs_normalizer, clip,
+                                                                 rl_games_form=form == "rl_games")
 
     def _check_rate_bounds(self, low, high) -> tuple[float, float]:
         key = "train.algorithm.learning_rate"
@@ -633,17 +567,3 @@ class SyncFreePPO(PPO):
             self.value_normalizer.load_state_dict(loaded_dict[VALUE_NORMALIZER_KEY])
         self._install_device_learning_rate()
         return resume_iteration
-
-
-class _RealUnitCritic:
-    """The critic seen through the value statistics: its output in real units; anything else is the critic's own
-    (rsl-rl-lib's ``compute_returns`` also saves and restores its hidden state)."""
-
-    def __init__(self, critic: torch.nn.Module, normalizer: ValueNormalizer) -> None:
-        self._critic, self._normalizer = critic, normalizer
-
-    def __call__(self, *args, **kwargs) -> torch.Tensor:
-        return self._normalizer.denormalize(self._critic(*args, **kwargs))
-
-    def __getattr__(self, name: str):
-        return getattr(self._critic, name)

@@ -15,6 +15,7 @@ TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")  # the train YAML's 
 KL_SCHEDULES = ("per_mini_batch", "per_epoch")
 KL_FORMS = ("rsl_rl", "rl_games")
 GRAD_CLIP_SCOPES = ("per_network", "global")
+OBS_NORMALIZATION_FORMS = ("rsl_rl", "rl_games")
 
 
 # Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.
@@ -38,6 +39,8 @@ _TRAIN_CHECKS = {
     ("algorithm", "kl_form"): lambda v, k: one_of(v, k, KL_FORMS),
     ("algorithm", "grad_clip_scope"): lambda v, k: one_of(v, k, GRAD_CLIP_SCOPES),
     ("algorithm", "obs_normalization_clip"): lambda v, k: v is None or real_number(v, k, 0.0, low_open=True),
+    ("algorithm", "obs_normalization_form"): lambda v, k: one_of(v, k, OBS_NORMALIZATION_FORMS),
+    ("algorithm", "share_trunk"): boolean,
     ("actor", "obs_normalization"): boolean,
     ("critic", "obs_normalization"): boolean,
 }
