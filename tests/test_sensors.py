@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Sensor, Simulator, SolverOptions, build_model, sensor_specs
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.go1 import Go1
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError

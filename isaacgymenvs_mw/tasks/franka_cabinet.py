@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import FrankaArm

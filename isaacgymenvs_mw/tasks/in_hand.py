@@ -34,7 +34,7 @@ import torch
 
 from isaacgymenvs_mw.sim.couplings import joint_couplings, servo_transmission
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import whole_number

@@ -33,7 +33,7 @@ from isaacgymenvs_mw.sim import (
     parse_terrain_config,
 )
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, PER_STEP, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError

@@ -34,8 +34,8 @@ from isaacgymenvs_mw.tasks.base.env_keys import episode_length, joint_velocity_c
 from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
 from isaacgymenvs_mw.tasks.base.ige_surface import IGESurface
 from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
-from isaacgymenvs_mw.tasks.base.observation_groups import Observations
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm, sensor_terms
+from isaacgymenvs_mw.tasks.base.observation_composer import Observations
+from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, ObsTerm, sensor_terms
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
