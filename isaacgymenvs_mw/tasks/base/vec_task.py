@@ -38,7 +38,7 @@ from isaacgymenvs_mw.tasks.base.observation_composer import Observations
 from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, ObsTerm, sensor_terms
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
-from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
+from isaacgymenvs_mw.tasks.base.sim_factory import build_simulator, yaml_model_request
 from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases, fresh_dict
 from isaacgymenvs_mw.utils.device import resolve_device
 

@@ -1,5 +1,8 @@
 """How VecTask asks the sim layer for its simulator: the model the task YAML requests, and the Simulator built from
-a request (``VecTask.model_request`` / ``VecTask.make_simulator`` call these; tasks extend the request between)."""
+a request (``VecTask.model_request`` / ``VecTask.make_simulator`` call these; tasks extend the request between).
+
+Named a factory, apart from ``sim/simulator.py`` (the ``Simulator`` class itself): this is the task side's reading of
+the YAML into the sim layer's arguments, and holds no simulator code of its own."""
 
 from __future__ import annotations
 
