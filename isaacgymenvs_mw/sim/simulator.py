@@ -29,6 +29,7 @@ from isaacgymenvs_mw.sim.sensor_registry import SensorRegistry
 from isaacgymenvs_mw.sim.sensors import Sensor, SensorContext, sensor_columns
 from isaacgymenvs_mw.sim.views import TensorViews
 from isaacgymenvs_mw.sim.world_state import WorldState
+from isaacgymenvs_mw.utils.config import check_num_envs
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 
@@ -83,12 +84,12 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         sensors: Sequence[Sensor] = (),
         torque_speed: Mapping[str, tuple[float, float, float]] | None = None,
     ) -> None:
-        if num_worlds < 1:
-            raise ConfigError(f"numEnvs must be >= 1, got {num_worlds}")
         if substeps < 1:
             raise ConfigError(f"controlFrequencyInv must be >= 1, got {substeps}")
         self.mj_model = mj_model
-        self.num_worlds = int(num_worlds)
+        # num_worlds is MuJoCo Warp's term (its nworld) and stays the sim layer's; the task side says num_envs and
+        # the YAML numEnvs. One check of it for all three (utils/config.py).
+        self.num_worlds = check_num_envs(num_worlds, "numEnvs")
         self.substeps = int(substeps)
         self.device = torch.device(device)
         self.wp_device = _wp_device(device)

@@ -251,9 +251,8 @@ def check_run_config(cfg: DictConfig) -> None:
         value = cfg.get(key, "")
         if not (value in ("", None) and key in ("num_envs", "max_iterations")):
             whole_number(value, key, minimum)
-    if cfg.get("num_envs") not in ("", None) and int(cfg.num_envs) > MAX_WORLDS:
-        raise ConfigError(f"num_envs={cfg.num_envs!r} is invalid: give a whole number from 1 to {MAX_WORLDS} "
-                          "(MuJoCo Warp counts worlds in 32-bit integers)")
+    if cfg.get("num_envs") not in ("", None):
+        check_num_envs(cfg.num_envs, "num_envs")
     for key in _RUN_BOOLEANS:
         if key in cfg:
             boolean(cfg[key], key)
@@ -266,6 +265,17 @@ def check_run_config(cfg: DictConfig) -> None:
         if not isinstance(value, str) or (key in _RUN_NONEMPTY and not value.strip()):
             wanted = "a non-empty string" if key in _RUN_NONEMPTY else "a string"
             raise ConfigError(f"{key}={value!r} is invalid: give {wanted}")
+
+
+def check_num_envs(value, key: str) -> int:
+    """The number of envs (worlds) as an int from 1 to MAX_WORLDS, else a one-line error naming ``key`` as the user
+    typed it: ``num_envs`` on the command line, ``env.numEnvs`` in a task YAML, ``numEnvs`` where the Simulator is
+    built directly. The one check of it: the run config, the task settings and the Simulator all call this."""
+    number = whole_number(value, key, 1)
+    if number > MAX_WORLDS:
+        raise ConfigError(f"{key}={value!r} is invalid: give a whole number from 1 to {MAX_WORLDS} "
+                          "(MuJoCo Warp counts worlds in 32-bit integers)")
+    return number
 
 
 def time_budget(value) -> float | None:

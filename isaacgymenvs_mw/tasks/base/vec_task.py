@@ -68,7 +68,7 @@ class VecTask(IGESurface):
         self.device = self.sim_device
         declares_layout = type(self).observation_terms is not VecTask.observation_terms
         settings = task_settings(config, declares_layout)
-        self.num_environments, self.num_actions = settings.num_envs, settings.num_actions
+        self.num_envs, self.num_actions = settings.num_envs, settings.num_actions
         self.control_freq_inv, self.render_interval = settings.control_freq_inv, settings.render_interval
         self.clip_obs, self.clip_actions = settings.clip_obs, settings.clip_actions
         self.overflow_check_interval = settings.overflow_check_interval
@@ -76,7 +76,7 @@ class VecTask(IGESurface):
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
         self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
-                                     self.num_environments, self.sim_device)
+                                     self.num_envs, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
         if self.sim is None:
@@ -119,7 +119,7 @@ class VecTask(IGESurface):
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         """The Simulator of ``request``, with ``per_world_fields`` and the randomised quantities' fields per world."""
-        return build_simulator(self.cfg, request, self.num_environments, self.sim_device, self.control_freq_inv,
+        return build_simulator(self.cfg, request, self.num_envs, self.sim_device, self.control_freq_inv,
                                tuple(per_world_fields) + self.randomizer.per_world_fields())
 
     def allocate_buffers(self) -> None:
