@@ -46,7 +46,7 @@ def build(tmp_path, declared=DECLARED) -> mujoco.MjModel:
     path.write_text(ARM)
     request = ModelRequest(asset_file=path, fix_base=True, keep_asset_contacts=True,
                            drives={j: JointDrive("position", 20.0, 1.0) for j in ("shoulder", "elbow")},
-                           options=SolverOptions(dt=0.005, enable_contacts=False), sensors=sensor_specs(declared),
+                           options=SolverOptions(dt=0.005, enable_contacts=False), declared_sensors=sensor_specs(declared),
                            stability_probe=False)
     return build_model(request)
 
@@ -272,6 +272,7 @@ class SpeedGo1(Go1):
 
     def model_request(self):
         request = super().model_request()
+        # the guide's earlier name of ModelRequest.declared_sensors, which a task of that guide uses unchanged
         request.sensors = (*request.sensors, BaseSpeed())
         return request
 

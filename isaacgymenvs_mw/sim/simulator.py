@@ -64,10 +64,10 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         torque_speed: {joint: (saturation torque, torque limit, no-load speed)} (``ModelRequest.torque_speed``): the
             drives of these joints follow a DC motor's torque-speed curve (``sim/actuators.py``) at every physics
             step; ``self.torque_speed`` then holds the per-world parameter views, which randomisation may rewrite.
-        sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``, ``env.cameras`` included):
-            each is bound to its views (``sensor(name)``) and refreshed in its phase (``Sensor.refresh``): the computed
-            ones by ``sense()``, the cameras by ``render_cameras()`` (one render for all). The model's MuJoCo sensors
-            are views by name without it.
+        declared_sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``, ``env.cameras``
+            included), unbound. The registry ``self.sensors`` binds each to its views (``sensor(name)``) and
+            refreshes it in its phase (``Sensor.refresh``): the computed ones by ``sense()``, the cameras by
+            ``render_cameras()`` (one render for all). The model's MuJoCo sensors are views by name without it.
     """
 
     def __init__(
@@ -81,7 +81,7 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         per_world_fields: Sequence[str] = (),
         use_graphs: bool | None = None,
         deterministic: bool = False,
-        sensors: Sequence[Sensor] = (),
+        declared_sensors: Sequence[Sensor] = (),
         torque_speed: Mapping[str, tuple[float, float, float]] | None = None,
     ) -> None:
         if substeps < 1:
@@ -125,7 +125,7 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         # The sensors' owner: it binds each to a context of what sensors read and keeps the sense and render lists.
         context = SensorContext(mj_model, self.model, self.data, self.device, self.num_worlds, self.sensordata,
                                 sensor_columns(mj_model), self.state_views())
-        self.sensors = SensorRegistry(context, sensors, self.wp_device)
+        self.sensors = SensorRegistry(context, declared_sensors, self.wp_device)
         # The kernels start compiling now, in the background (the render context above launched its own first): a
         # cold start compiles while the task builds the rest of itself, not after it.
         self._kernel_load = self._start_kernel_load()

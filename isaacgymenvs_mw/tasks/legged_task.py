@@ -80,7 +80,7 @@ class LeggedTask(VecTask):
             request.terrain = self.terrain
             t = self.terrain_settings
             scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
-            request.sensors = (*request.sensors, scan)
+            request.declared_sensors = (*request.declared_sensors, scan)
         return request
 
     # ----------------------------------------------------------------- terrain

@@ -36,6 +36,6 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
         per_world_fields=tuple(dict.fromkeys(per_world_fields)),
         use_graphs=sim.get("useGraphs"),
         deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
-        sensors=request.all_sensors(),
+        declared_sensors=request.all_sensors(),
         torque_speed=request.torque_speed,
     )
