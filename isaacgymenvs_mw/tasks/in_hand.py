@@ -125,8 +125,7 @@ class InHandTask(VecTask):
         self.prev_targets = torch.zeros((n, self.num_actions), device=dev)
         self.successes = torch.zeros(n, device=dev)  # goals reached in the running episode
         self.consecutive_successes = torch.zeros((), device=dev)  # IGE's metric (module docstring)
-        scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
-        self.rewards = RewardTerms(self, scales, n, dev, key="env")
+        self.rewards = RewardTerms.from_env(self, env, n, dev, ige_keys=REWARD_SCALE_KEYS)
         self.terms: dict[str, torch.Tensor] = {}
         if self.force_scale > 0.0:
             # IGE's pushes: a force on the cube that decays, replaced at random moments by a new one (_push_cube)
