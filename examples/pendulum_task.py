@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks import register_task
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
 

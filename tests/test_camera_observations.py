@@ -17,7 +17,7 @@ from isaacgymenvs_mw.learning.export import read_metadata
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.models import ImageCNNModel
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm
 from isaacgymenvs_mw.tasks.cartpole_camera import CartpoleCamera
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError

@@ -48,7 +48,7 @@ def test_cameras_given_as_sensors_are_rendered_in_one_render_and_not_sensed():
                              "height": 4, "outputs": ["segmentation", "rgb"]}}}
     request = request_from_config(env, {"dt": 0.01}, None, Path("assets"))
     assert [s.name for s in request.all_sensors()] == ["a", "b"]
-    sim = Simulator(build_model(request), 2, "cpu", sensors=request.all_sensors())
+    sim = Simulator(build_model(request), 2, "cpu", declared_sensors=request.all_sensors())
     assert sim.sensors.outputs("a") == ("depth",) and sim.sensors.outputs("b") == ("rgb", "segmentation")
     assert sim.sensors.computed == []  # nothing of theirs in the sense phase
     sim.sense()
@@ -58,4 +58,4 @@ def test_cameras_given_as_sensors_are_rendered_in_one_render_and_not_sensed():
     assert (sim.sensor("a", output="depth") > 0).all() and sim.sensor("b", output="segmentation").max() >= 0
     assert list(sim.cameras) == ["a", "b"] and sim.cameras["b"].outputs == ("rgb", "segmentation")
     with pytest.raises(ConfigError, match=r"^two sensors of the model are named 'a'"):
-        Simulator(build_model(request), 1, "cpu", sensors=(*request.all_sensors(), request.cameras[0]))
+        Simulator(build_model(request), 1, "cpu", declared_sensors=(*request.all_sensors(), request.cameras[0]))

@@ -38,7 +38,7 @@ def scene_env(**cameras) -> dict:
 def make_sim(env: dict, num_worlds: int = 3, **kwargs) -> tuple[Simulator, mujoco.MjModel]:
     request = request_from_config(env, {"dt": 0.01}, None, Path("assets"))
     model = build_model(request)
-    return Simulator(model, num_worlds, "cpu", sensors=request.all_sensors(), **kwargs), model
+    return Simulator(model, num_worlds, "cpu", declared_sensors=request.all_sensors(), **kwargs), model
 
 
 class Images:

@@ -97,7 +97,7 @@ def test_documented_override_reaches_the_joint_table():
     leaves the HAA joints at 80; the bracketed key also selects joints by the project's one name rule."""
     from isaacgymenvs_mw.sim import request_from_config
     from isaacgymenvs_mw.sim.builder import match_joint_numbers
-    from isaacgymenvs_mw.tasks.base.simulation import ASSETS_DIR
+    from isaacgymenvs_mw.tasks.base.sim_factory import ASSETS_DIR
     from isaacgymenvs_mw.utils.config import compose_config, to_dict
 
     (_, second) = documented_override_lines()

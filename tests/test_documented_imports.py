@@ -56,3 +56,12 @@ def test_the_docs_show_the_names_a_task_project_imports():
 def test_each_documented_import_resolves(path, name):
     assert resolve(path, name) is not None
 
+
+
+def test_the_terms_earlier_home_hands_out_the_same_objects():
+    # Task projects written when the docs said `from isaacgymenvs_mw.tasks.base.observations import ObsTerm` (before
+    # the terms moved to observation_terms.py) must get the very classes VecTask checks against, not copies.
+    old = importlib.import_module("isaacgymenvs_mw.tasks.base.observations")
+    new = importlib.import_module("isaacgymenvs_mw.tasks.base.observation_terms")
+    assert {"ObsTerm", "ImageTerm", "camera_terms"} <= set(old.__all__)
+    assert all(getattr(old, name) is getattr(new, name) for name in old.__all__)

@@ -10,7 +10,7 @@ import torch
 
 import isaacgymenvs_mw
 from isaacgymenvs_mw.tasks.base.history import HistorySpec, ObsHistory, parse_history
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsLayout, ObsTerm
 
 LAYOUT = ObsLayout([ObsTerm("a", 2), ObsTerm("b", 1), ObsTerm("c", 3)])
 

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsLayout, ObsTerm
 
 
 def test_layout_sizes_slices_and_noise_follow_the_terms():

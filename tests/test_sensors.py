@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from isaacgymenvs_mw.sim import JointDrive, ModelRequest, Sensor, Simulator, SolverOptions, build_model, sensor_specs
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.go1 import Go1
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -46,7 +46,7 @@ def build(tmp_path, declared=DECLARED) -> mujoco.MjModel:
     path.write_text(ARM)
     request = ModelRequest(asset_file=path, fix_base=True, keep_asset_contacts=True,
                            drives={j: JointDrive("position", 20.0, 1.0) for j in ("shoulder", "elbow")},
-                           options=SolverOptions(dt=0.005, enable_contacts=False), sensors=sensor_specs(declared),
+                           options=SolverOptions(dt=0.005, enable_contacts=False), declared_sensors=sensor_specs(declared),
                            stability_probe=False)
     return build_model(request)
 
@@ -272,6 +272,7 @@ class SpeedGo1(Go1):
 
     def model_request(self):
         request = super().model_request()
+        # the guide's earlier name of ModelRequest.declared_sensors, which a task of that guide uses unchanged
         request.sensors = (*request.sensors, BaseSpeed())
         return request
 

@@ -209,8 +209,9 @@ _MANY_CPU_WORLDS = 8192
 
 def build_with_notice(cfg: DictConfig):
     """build_task, telling the user when it will be slow (many worlds on the CPU) and what it took when it was."""
-    num_envs = cfg.num_envs if cfg.num_envs not in ("", None) else OmegaConf.select(
-        cfg, "task.env.numEnvs", default=0, throw_on_resolution_failure=False)  # build_task reports a bad value
+    # task.env.numEnvs already holds the run's num_envs where one is given (the task YAML's resolve_default); a bad
+    # value is left to build_task, whose check names it.
+    num_envs = OmegaConf.select(cfg, "task.env.numEnvs", default=0, throw_on_resolution_failure=False)
     on_cpu = resolve_device(cfg.sim_device, "sim_device") == "cpu" and not cfg.get("multi_gpu", False)
     if on_cpu and isinstance(num_envs, int) and num_envs >= _MANY_CPU_WORLDS:
         print(f"[train] {num_envs} worlds on the CPU: building them and the first iteration take minutes (Cartpole "

@@ -139,8 +139,9 @@ class ModelRequest:
     # is composed (all_sensors).
     cameras: Sequence[CameraSpec] = ()
     # Sensors the task YAML declares (env.sensors) and the task adds (sim/sensors.py), added once the scene is
-    # composed; the contact forces of contact_bodies come after them (all_sensors).
-    sensors: Sequence[Sensor] = ()
+    # composed; the contact forces of contact_bodies come after them (all_sensors). Unbound declarations: the
+    # Simulator binds them into its registry, ``sim.sensors``, the one thing that name means.
+    declared_sensors: Sequence[Sensor] = ()
     # Step one world in MuJoCo C at build time to see whether the drives diverge (sim.stabilityProbe, sim/stability.py).
     stability_probe: bool = True
     # {joint: (saturation torque, torque limit, no-load speed)}: the DC-motor limit of the joint's drive
@@ -152,10 +153,21 @@ class ModelRequest:
         spec = self.spec if self.spec is not None else load_spec(self.asset_file, self.collapse_fixed_joints)
         return [b.name for b in spec.bodies]
 
+    @property
+    def sensors(self) -> tuple[Sensor, ...]:
+        """``declared_sensors`` by its earlier name, which the contributor guide of 2026-11 taught
+        (``request.sensors = (*request.sensors, BaseSpeed())``); kept so those tasks run unchanged."""
+        return tuple(self.declared_sensors)
+
+    @sensors.setter
+    def sensors(self, value: Sequence[Sensor]) -> None:
+        self.declared_sensors = value
+
     def all_sensors(self) -> tuple[Sensor, ...]:
-        """The sensors the model is built with: the ``cameras``, then, in column order, ``sensors`` and the contact
-        forces of ``contact_bodies``. ``Simulator(sensors=...)`` binds them."""
-        return (*self.cameras, *self.sensors, *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
+        """The sensors the model is built with: the ``cameras``, then, in column order, ``declared_sensors`` and the
+        contact forces of ``contact_bodies``. ``Simulator(declared_sensors=...)`` binds them."""
+        return (*self.cameras, *self.declared_sensors,
+                *((ContactForces(self.contact_bodies),) if self.contact_bodies else ()))
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "env.asset") -> mujoco.MjSpec:

@@ -90,7 +90,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None, assets
         geom_contacts=geom_contacts(env.get("contact")),
         average_friction=average_friction_pairs(env.get("averageFriction")),
         cameras=camera_specs(env.get("cameras")),
-        sensors=sensor_specs(env.get("sensors")),
+        declared_sensors=sensor_specs(env.get("sensors")),
         stability_probe=stability_probe(sim),
         torque_speed=torque_speed,
     )

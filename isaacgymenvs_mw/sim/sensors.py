@@ -2,9 +2,9 @@
 with no host copy (``Simulator.sensor(name)``; a camera has one view per output, ``Simulator.sensor(name,
 output="rgb")``).
 
-A sensor is declared before the model is built (``ModelRequest.sensors``, or ``env.sensors`` and ``env.cameras`` in
-the task YAML; ``ModelRequest.all_sensors()`` lists them all) and adds what it needs to the model spec there
-(``Sensor.add_to``); once the model is compiled the simulator's sensor registry (``SensorRegistry``,
+A sensor is declared before the model is built (``ModelRequest.declared_sensors``, or ``env.sensors`` and
+``env.cameras`` in the task YAML; ``ModelRequest.all_sensors()`` lists them all) and adds what it needs to the model
+spec there (``Sensor.add_to``); once the model is compiled the simulator's sensor registry (``SensorRegistry``,
 sim/sensor_registry.py; ``Simulator.sensors``) binds it to a ``SensorContext`` (``Sensor.bind``: its views) and
 refreshes it in the phase of the step its ``refresh`` names:
   * MuJoCo sensors (an asset's MJCF ``<sensor>`` section, ``env.sensors`` entries, the net contact forces of

@@ -29,6 +29,7 @@ from isaacgymenvs_mw.sim.sensor_registry import SensorRegistry
 from isaacgymenvs_mw.sim.sensors import Sensor, SensorContext, sensor_columns
 from isaacgymenvs_mw.sim.views import TensorViews
 from isaacgymenvs_mw.sim.world_state import WorldState
+from isaacgymenvs_mw.utils.config import check_num_envs
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 
@@ -63,10 +64,10 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         torque_speed: {joint: (saturation torque, torque limit, no-load speed)} (``ModelRequest.torque_speed``): the
             drives of these joints follow a DC motor's torque-speed curve (``sim/actuators.py``) at every physics
             step; ``self.torque_speed`` then holds the per-world parameter views, which randomisation may rewrite.
-        sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``, ``env.cameras`` included):
-            each is bound to its views (``sensor(name)``) and refreshed in its phase (``Sensor.refresh``): the computed
-            ones by ``sense()``, the cameras by ``render_cameras()`` (one render for all). The model's MuJoCo sensors
-            are views by name without it.
+        declared_sensors: the sensors ``mj_model`` was built with (``ModelRequest.all_sensors()``, ``env.cameras``
+            included), unbound. The registry ``self.sensors`` binds each to its views (``sensor(name)``) and
+            refreshes it in its phase (``Sensor.refresh``): the computed ones by ``sense()``, the cameras by
+            ``render_cameras()`` (one render for all). The model's MuJoCo sensors are views by name without it.
     """
 
     def __init__(
@@ -80,15 +81,15 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         per_world_fields: Sequence[str] = (),
         use_graphs: bool | None = None,
         deterministic: bool = False,
-        sensors: Sequence[Sensor] = (),
+        declared_sensors: Sequence[Sensor] = (),
         torque_speed: Mapping[str, tuple[float, float, float]] | None = None,
     ) -> None:
-        if num_worlds < 1:
-            raise ConfigError(f"numEnvs must be >= 1, got {num_worlds}")
         if substeps < 1:
             raise ConfigError(f"controlFrequencyInv must be >= 1, got {substeps}")
         self.mj_model = mj_model
-        self.num_worlds = int(num_worlds)
+        # num_worlds is MuJoCo Warp's term (its nworld) and stays the sim layer's; the task side says num_envs and
+        # the YAML numEnvs. One check of it for all three (utils/config.py).
+        self.num_worlds = check_num_envs(num_worlds, "numEnvs")
         self.substeps = int(substeps)
         self.device = torch.device(device)
         self.wp_device = _wp_device(device)
@@ -124,7 +125,7 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         # The sensors' owner: it binds each to a context of what sensors read and keeps the sense and render lists.
         context = SensorContext(mj_model, self.model, self.data, self.device, self.num_worlds, self.sensordata,
                                 sensor_columns(mj_model), self.state_views())
-        self.sensors = SensorRegistry(context, sensors, self.wp_device)
+        self.sensors = SensorRegistry(context, declared_sensors, self.wp_device)
         # The kernels start compiling now, in the background (the render context above launched its own first): a
         # cold start compiles while the task builds the rest of itself, not after it.
         self._kernel_load = self._start_kernel_load()

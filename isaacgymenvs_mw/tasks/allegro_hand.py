@@ -13,7 +13,7 @@ whose range excludes its default 0, is clamped into the range.
 
 from __future__ import annotations
 
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.in_hand import InHandTask
 
 

@@ -9,7 +9,7 @@ critic (``obs_groups: {actor: [camera], critic: [policy]}``).
 
 from __future__ import annotations
 
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm, camera_terms
+from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, camera_terms
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
 
 

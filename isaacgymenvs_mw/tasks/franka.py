@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from isaacgymenvs_mw.sim import Simulator
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 ARM_JOINTS = tuple(f"joint{i}" for i in range(1, 8))

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import FrankaArm
@@ -57,8 +57,7 @@ class FrankaCabinet(VecTask):
         speed[-1] = self.env_numbers["fingerSpeedScale"]
         self.target_step = speed * self.env_numbers["actionScale"] * self.control_dt
         self.actions = torch.zeros((self.num_envs, self.num_actions), device=self.device)
-        self.rewards = RewardTerms(self, {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}, self.num_envs,
-                                   self.device, key="env")
+        self.rewards = RewardTerms.from_env(self, env, self.num_envs, self.device, ige_keys=REWARD_SCALE_KEYS)
         self.build_observation_layouts()
 
     def _init_drawer(self, drawer: dict) -> None:

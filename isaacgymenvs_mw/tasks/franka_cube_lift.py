@@ -21,7 +21,7 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks import franka
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm, camera_terms
+from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, ObsTerm, camera_terms
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import FrankaArm
@@ -66,8 +66,7 @@ class FrankaCubeLift(VecTask):
         self.cube = self.sim.asset("cubeA")
         self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1
         self.table_centre = torch.tensor([*franka.TABLE_CENTRE_XY], device=self.device)
-        scales = {t: real_number(env[k], f"env.{k}") for t, k in REWARD_SCALE_KEYS.items()}
-        self.rewards = RewardTerms(self, scales, self.num_envs, self.device, key="env")
+        self.rewards = RewardTerms.from_env(self, env, self.num_envs, self.device, ige_keys=REWARD_SCALE_KEYS)
         self.terms: dict[str, torch.Tensor] = {}
         self.build_observation_layouts()
 

@@ -42,7 +42,7 @@ import torch
 
 from isaacgymenvs_mw.sim.dynamics import SiteDynamics
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import (

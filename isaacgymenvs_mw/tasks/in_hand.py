@@ -34,7 +34,7 @@ import torch
 
 from isaacgymenvs_mw.sim.couplings import joint_couplings, servo_transmission
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import whole_number
@@ -125,8 +125,7 @@ class InHandTask(VecTask):
         self.prev_targets = torch.zeros((n, self.num_actions), device=dev)
         self.successes = torch.zeros(n, device=dev)  # goals reached in the running episode
         self.consecutive_successes = torch.zeros((), device=dev)  # IGE's metric (module docstring)
-        scales = {t: float(env[k]) for t, k in REWARD_SCALE_KEYS.items()}
-        self.rewards = RewardTerms(self, scales, n, dev, key="env")
+        self.rewards = RewardTerms.from_env(self, env, n, dev, ige_keys=REWARD_SCALE_KEYS)
         self.terms: dict[str, torch.Tensor] = {}
         if self.force_scale > 0.0:
             # IGE's pushes: a force on the cube that decays, replaced at random moments by a new one (_push_cube)

@@ -33,7 +33,7 @@ from isaacgymenvs_mw.sim import (
     parse_terrain_config,
 )
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, PER_STEP, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -55,7 +55,7 @@ class LeggedTask(VecTask):
         self._init_joint_settings(env)
         self._init_bodies(env["asset"])
         self._init_buffers(env)
-        self._init_rewards(env["rewards"])
+        self._init_rewards(env)
         if self.terrain is not None:
             self._init_terrain_state()
         self.build_observation_layouts()
@@ -80,7 +80,7 @@ class LeggedTask(VecTask):
             request.terrain = self.terrain
             t = self.terrain_settings
             scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
-            request.sensors = (*request.sensors, scan)
+            request.declared_sensors = (*request.declared_sensors, scan)
         return request
 
     # ----------------------------------------------------------------- terrain
@@ -233,7 +233,8 @@ class LeggedTask(VecTask):
         self._base_mass = self.sim.model_field("body_mass")[:, self.base_body:self.base_body + 1]
         self._nominal_base_mass = float(self.sim.mj_model.body_mass[self.base_body])
 
-    def _init_rewards(self, rew: dict) -> None:
+    def _init_rewards(self, env: dict) -> None:
+        rew = env["rewards"]
         scales = dict(rew["scales"])
         self.tracking_sigma = float(rew.get("trackingSigma", 0.25))
         self.base_height_target = float(rew.get("baseHeightTarget", 0.5))
@@ -252,10 +253,10 @@ class LeggedTask(VecTask):
         # Scales are per second of policy time (legged_gym); legged_gym adds the termination term after the clamp
         # at 0: a fall still costs something while every other step is clamped to nothing (as early on, when
         # random actions cost more than tracking earns).
-        self.rewards = RewardTerms(self, scales, self.num_envs, self.device, dt=self.control_dt,
-                                   only_positive=bool(rew.get("onlyPositiveRewards", True)), unclamped=("termination",),
-                                   penalty_curriculum=rew.get("penaltyCurriculum"),
-                                   step_count=self.randomizer.step_count, key="env.rewards")
+        self.rewards = RewardTerms.from_env(self, env, self.num_envs, self.device, dt=self.control_dt,
+                                            only_positive=bool(rew.get("onlyPositiveRewards", True)),
+                                            unclamped=("termination",), penalty_curriculum=rew.get("penaltyCurriculum"),
+                                            step_count=self.randomizer.step_count)
         self._deviation_mask = joint_mask("jointDeviationJoints", "joint_deviation")
         self._upper_body_mask = joint_mask("upperBodyJoints", "upper_body_posture")
 

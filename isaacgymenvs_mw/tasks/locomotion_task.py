@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks.base.metrics import PER_STEP, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms, reward_methods
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError

@@ -23,7 +23,7 @@ import torch
 
 from isaacgymenvs_mw.tasks.base.env_keys import positive_env_number
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, PER_STEP, Metric
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_axis

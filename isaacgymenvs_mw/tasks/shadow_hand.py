@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import torch
 
-from isaacgymenvs_mw.tasks.base.observations import ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.in_hand import FORCE_OBS_SCALE, InHandTask
 from isaacgymenvs_mw.utils.errors import ConfigError
 

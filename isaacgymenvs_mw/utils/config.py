@@ -236,9 +236,10 @@ def boolean(value, key: str) -> bool:
 
 
 # Run-level keys of cfg/config.yaml and what each takes; num_envs and max_iterations may also be '' (YAML default).
+# num_envs has its own check (check_num_envs), shared with env.numEnvs and the Simulator.
 _RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "multi_gpu", "capture_video", "verbose",
                  "sweep_eval", "save_best")
-_RUN_WHOLE_NUMBERS = {"num_envs": 1, "max_iterations": 0, "seed": -1, "graphics_device_id": -1,
+_RUN_WHOLE_NUMBERS = {"max_iterations": 0, "seed": -1, "graphics_device_id": -1,
                       "capture_video_freq": 1, "capture_video_len": 1}
 MAX_WORLDS = 2**31 - 1  # Warp's array dimensions are signed 32-bit integers
 _RUN_TEXT = ("task_module", "checkpoint", "runs_dir", "sim_device", "rl_device", "sweep_metric", "learner")
@@ -247,13 +248,12 @@ _RUN_NONEMPTY = ("runs_dir", "sim_device", "rl_device", "sweep_metric")
 
 def check_run_config(cfg: DictConfig) -> None:
     """Fail on run-level keys that are out of range or of the wrong kind, before anything is allocated."""
+    if cfg.get("num_envs", "") not in ("", None):
+        check_num_envs(cfg.num_envs, "num_envs")
     for key, minimum in _RUN_WHOLE_NUMBERS.items():
         value = cfg.get(key, "")
-        if not (value in ("", None) and key in ("num_envs", "max_iterations")):
+        if not (value in ("", None) and key == "max_iterations"):
             whole_number(value, key, minimum)
-    if cfg.get("num_envs") not in ("", None) and int(cfg.num_envs) > MAX_WORLDS:
-        raise ConfigError(f"num_envs={cfg.num_envs!r} is invalid: give a whole number from 1 to {MAX_WORLDS} "
-                          "(MuJoCo Warp counts worlds in 32-bit integers)")
     for key in _RUN_BOOLEANS:
         if key in cfg:
             boolean(cfg[key], key)
@@ -266,6 +266,17 @@ def check_run_config(cfg: DictConfig) -> None:
         if not isinstance(value, str) or (key in _RUN_NONEMPTY and not value.strip()):
             wanted = "a non-empty string" if key in _RUN_NONEMPTY else "a string"
             raise ConfigError(f"{key}={value!r} is invalid: give {wanted}")
+
+
+def check_num_envs(value, key: str) -> int:
+    """The number of envs (worlds) as an int from 1 to MAX_WORLDS, else a one-line error naming ``key`` as the user
+    typed it: ``num_envs`` on the command line, ``env.numEnvs`` in a task YAML, ``numEnvs`` where the Simulator is
+    built directly. The one check of it: the run config, the task settings and the Simulator all call this."""
+    number = whole_number(value, key, 1)
+    if number > MAX_WORLDS:
+        raise ConfigError(f"{key}={value!r} is invalid: give a whole number from 1 to {MAX_WORLDS} "
+                          "(MuJoCo Warp counts worlds in 32-bit integers)")
+    return number
 
 
 def time_budget(value) -> float | None:

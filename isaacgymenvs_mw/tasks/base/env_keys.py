@@ -12,7 +12,7 @@ import torch
 
 from isaacgymenvs_mw.sim import check_sim_keys, match_joint_numbers
 from isaacgymenvs_mw.tasks.base.history import HistorySpec, parse_history
-from isaacgymenvs_mw.utils.config import real_number, whole_number
+from isaacgymenvs_mw.utils.config import check_num_envs, real_number, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # Episode-length keys of earlier versions and of IsaacGymEnvs' tasks (policy steps): refused, naming the new key.
@@ -43,7 +43,7 @@ def task_settings(config: Mapping, declares_layout: bool) -> TaskSettings:
     env = config["env"]
     refuse_removed_keys(env)
     settings = TaskSettings(
-        num_envs=require_int(env, "numEnvs", minimum=1),
+        num_envs=check_num_envs(required(env, "numEnvs"), "env.numEnvs"),
         # A task that declares its observation terms derives these sizes; a YAML value must then agree.
         num_obs=require_int(env, "numObservations", minimum=1, default=0 if declares_layout else None),
         num_states=None if env.get("numStates") is None else require_int(env, "numStates", minimum=0),
@@ -154,12 +154,17 @@ def warn_unused_ige_keys(env: dict) -> list[str]:
     return present
 
 
+def required(section: dict, key: str):
+    """``env.<key>`` of the ``env`` section, which the task YAML must give."""
+    if section.get(key) is None:
+        raise ConfigError(f"env.{key} is required in the task YAML")
+    return section[key]
+
+
 def require_int(section: dict, key: str, minimum: int, default: int | None = None) -> int:
-    if key not in section or section[key] is None:
-        if default is None:
-            raise ConfigError(f"env.{key} is required in the task YAML")
+    if section.get(key) is None and default is not None:
         return default
-    return whole_number(section[key], f"env.{key}", minimum)
+    return whole_number(required(section, key), f"env.{key}", minimum)
 
 
 def positive_env_number(section: dict, key: str, default: float) -> float:

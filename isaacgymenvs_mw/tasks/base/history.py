@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import torch
 
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsLayout
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 

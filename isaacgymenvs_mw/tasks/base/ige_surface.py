@@ -28,8 +28,9 @@ class IGESurface:
 
     # ------------------------------------------------------------- sizes
     @property
-    def num_envs(self) -> int:
-        return self.num_environments
+    def num_environments(self) -> int:
+        """IsaacGymEnvs' second name for ``num_envs`` (VecTask's one name for it), kept for ported code."""
+        return self.num_envs
 
     @property
     def num_obs(self) -> int:

@@ -32,7 +32,7 @@ from isaacgymenvs_mw.sim.randomization import (
     per_world_fields,
     write_view,
 )
-from isaacgymenvs_mw.tasks.base.observations import ObsLayout
+from isaacgymenvs_mw.tasks.base.observation_terms import ObsLayout
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 

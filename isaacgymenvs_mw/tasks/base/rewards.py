@@ -2,9 +2,12 @@
 with an optional penalty curriculum and the per-term episode sums every task reports the same way.
 
 A term is a method ``_reward_<name>`` of the task returning (num_envs,) values (the legged_gym pattern); its scale
-comes from the YAML (``env.rewards.scales.<name>``) or from the task. A zero scale removes the term: it is not
-computed. ``VecTask.reset_envs`` reports the finished episodes' sums in ``extras["episode_terms"]`` ({term: sum over
-the episodes ending now}; the learner divides by their count).
+comes from the YAML or from the task. A zero scale removes the term: it is not computed. The YAML convention of new
+tasks is one mapping, ``env.rewards.scales: {<name>: scale}`` (``RewardTerms.from_env``); a port from IsaacGymEnvs
+may keep its flat keys (``distRewardScale``, ...), which ``from_env`` reads through a {term: key} map. IsaacGymEnvs'
+global ``rewardScale`` (rl_games' reward shaper) stays with the ported tasks that have it; a new task puts that
+factor in its scales. ``VecTask.reset_envs`` reports the finished episodes' sums in ``extras["episode_terms"]``
+({term: sum over the episodes ending now}; the learner divides by their count).
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from typing import Callable, Mapping
 
 import torch
 
+from isaacgymenvs_mw.utils.config import real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 PREFIX = "_reward_"
@@ -58,6 +62,25 @@ class RewardTerms:
         self.episode_sums = torch.zeros(num_envs, len(active), device=device)
         self.step_count = step_count
         self._init_penalty_curriculum(penalty_curriculum, f"{key}.penaltyCurriculum")
+
+    @classmethod
+    def from_env(cls, task: object, env: Mapping, num_envs: int, device: torch.device | str, *,
+                 ige_keys: Mapping[str, str] | None = None, **options) -> "RewardTerms":
+        """The terms of a task YAML's ``env`` section, scaled as it says: ``env.rewards.scales`` ({term: scale}),
+        or, for a port that keeps IsaacGymEnvs' flat keys, ``ige_keys`` ({term: key of ``env``}, e.g.
+        ``{"dist": "distRewardScale"}``). ``options``: the constructor's (``dt``, ``only_positive``, ...)."""
+        if ige_keys is not None:
+            for term, key in ige_keys.items():
+                if env.get(key) is None:
+                    raise ConfigError(f"env.{key} is required: give the scale of the reward term {term}")
+            scales = {term: real_number(env[key], f"env.{key}") for term, key in ige_keys.items()}
+            return cls(task, scales, num_envs, device, key="env", **options)
+        given = (env.get("rewards") or {}).get("scales")
+        if not hasattr(given, "items"):
+            raise ConfigError(f"env.rewards.scales is required: give {{term: scale}} (terms: "
+                              f"{sorted(reward_methods(task))})")
+        scales = {term: real_number(s, f"env.rewards.scales.{term}") for term, s in given.items()}
+        return cls(task, scales, num_envs, device, key="env.rewards", **options)
 
     def _init_penalty_curriculum(self, cfg: Mapping | None, key: str) -> None:
         """Penalties (negative scales, unclamped terms aside) start at ``start`` x their scale and reach the full

@@ -34,11 +34,11 @@ from isaacgymenvs_mw.tasks.base.env_keys import episode_length, joint_velocity_c
 from isaacgymenvs_mw.tasks.base.episode import Episode, EpisodeBuffer
 from isaacgymenvs_mw.tasks.base.ige_surface import IGESurface
 from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
-from isaacgymenvs_mw.tasks.base.observation_groups import Observations
-from isaacgymenvs_mw.tasks.base.observations import ImageTerm, ObsTerm, sensor_terms
+from isaacgymenvs_mw.tasks.base.observation_composer import Observations
+from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, ObsTerm, sensor_terms
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
-from isaacgymenvs_mw.tasks.base.simulation import build_simulator, yaml_model_request
+from isaacgymenvs_mw.tasks.base.sim_factory import build_simulator, yaml_model_request
 from isaacgymenvs_mw.tasks.base.step_execution import StepExecution, StepPhases, fresh_dict
 from isaacgymenvs_mw.utils.device import resolve_device
 
@@ -68,7 +68,7 @@ class VecTask(IGESurface):
         self.device = self.sim_device
         declares_layout = type(self).observation_terms is not VecTask.observation_terms
         settings = task_settings(config, declares_layout)
-        self.num_environments, self.num_actions = settings.num_envs, settings.num_actions
+        self.num_envs, self.num_actions = settings.num_envs, settings.num_actions
         self.control_freq_inv, self.render_interval = settings.control_freq_inv, settings.render_interval
         self.clip_obs, self.clip_actions = settings.clip_obs, settings.clip_actions
         self.overflow_check_interval = settings.overflow_check_interval
@@ -76,7 +76,7 @@ class VecTask(IGESurface):
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
         self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
-                                     self.num_environments, self.sim_device)
+                                     self.num_envs, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
         if self.sim is None:
@@ -119,7 +119,7 @@ class VecTask(IGESurface):
 
     def make_simulator(self, request: ModelRequest, per_world_fields: tuple[str, ...] = ()) -> Simulator:
         """The Simulator of ``request``, with ``per_world_fields`` and the randomised quantities' fields per world."""
-        return build_simulator(self.cfg, request, self.num_environments, self.sim_device, self.control_freq_inv,
+        return build_simulator(self.cfg, request, self.num_envs, self.sim_device, self.control_freq_inv,
                                tuple(per_world_fields) + self.randomizer.per_world_fields())
 
     def allocate_buffers(self) -> None:

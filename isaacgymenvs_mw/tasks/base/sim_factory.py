@@ -1,5 +1,8 @@
 """How VecTask asks the sim layer for its simulator: the model the task YAML requests, and the Simulator built from
-a request (``VecTask.model_request`` / ``VecTask.make_simulator`` call these; tasks extend the request between)."""
+a request (``VecTask.model_request`` / ``VecTask.make_simulator`` call these; tasks extend the request between).
+
+Named a factory, apart from ``sim/simulator.py`` (the ``Simulator`` class itself): this is the task side's reading of
+the YAML into the sim layer's arguments, and holds no simulator code of its own."""
 
 from __future__ import annotations
 
@@ -33,6 +36,6 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
         per_world_fields=tuple(dict.fromkeys(per_world_fields)),
         use_graphs=sim.get("useGraphs"),
         deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
-        sensors=request.all_sensors(),
+        declared_sensors=request.all_sensors(),
         torque_speed=request.torque_speed,
     )

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from isaacgymenvs_mw.tasks.base.history import HistorySpec, ImageStack, ObsHistory
-from isaacgymenvs_mw.tasks.base.observations import ImageGroup, ImageTerm, ObsLayout, ObsTerm
+from isaacgymenvs_mw.tasks.base.observation_terms import ImageGroup, ImageTerm, ObsLayout, ObsTerm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 if TYPE_CHECKING:  # the simulator's sensor registry, whose cameras the image terms read
