@@ -406,6 +406,27 @@ def test_a_reset_that_refreshes_the_poses_compiles_into_the_one_graph_and_observ
     assert tasks[0].execution.compiled_at == "alongside Warp's kernels" and tasks[0].execution._step.compiles == 1
 
 
+def test_the_compiled_refresh_works_on_the_simulators_own_arrays():
+    # Inductor's default reordering moved the reward's reads of the poses and of qpos after the refresh, so it cloned
+    # those arrays and the op copied each one in and out around the kinematics (FrankaCubeLift: 4 arrays per step).
+    # Compiled in code order (graph_engine.refreshes_kinematics), the op gets the simulator's arrays themselves.
+    task = isaacgymenvs_mw.make("FrankaCubeLift", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True,
+                                seed=0, overrides=["+task.sim.compileStep=True"])
+    sim, handed = task.sim, []
+    own_refresh = sim._kinematics_on
+
+    def spy(state: list[torch.Tensor], poses: list[torch.Tensor]) -> None:
+        mine = [*sim._kinematics_state, *sim._kinematics_poses]
+        handed.append([i for i, (m, g) in enumerate(zip(mine, [*state, *poses])) if g.data_ptr() != m.data_ptr()])
+        own_refresh(state, poses)
+
+    sim._kinematics_on = spy
+    task.reset()
+    for _ in range(3):
+        task.step(torch.zeros(2, task.num_actions))
+    assert handed == [[], [], []]
+
+
 def test_a_replayed_step_reports_the_metric_tensors_its_capture_recorded():
     """A captured step's replays run no Python, so nothing records; the task's metrics must still be the tensors
     the step recorded while it was captured (the graphs rewrite them in place). CUDA graphs need a GPU: here the

@@ -43,6 +43,16 @@ def _(sim: int, state: list[torch.Tensor], poses: list[torch.Tensor]) -> None:
     return None
 
 
+def refreshes_kinematics(graph: torch.fx.Graph) -> bool:
+    """Whether a graph traced by torch.compile holds the kinematics refresh (``_kinematics_op``). Inductor's
+    ``reorder_for_locality`` moves each computation down to its first use, and a step's reward is first used by the
+    writes at its end, so the reads of the poses (and of qpos) that come before the refresh in the code end up after
+    it: Inductor then keeps their old values by cloning the arrays and hands the clones to the op, which copies them
+    in and out (``_kinematics_on``). Compiled without that reordering, the op refreshes the simulator's own arrays,
+    with the same values (FrankaCubeLift: 4 arrays moved per step before, none after; CPU, 2026-11-27)."""
+    return any(node.target is torch.ops.isaacgymenvs_mw.kinematics.default for node in graph.nodes)
+
+
 class GraphEngine:
     """Kernel loading, graph capture and replay, and the stepping entry points built on them (``simulate``,
     ``forward``, ``refresh_kinematics``)."""

@@ -40,6 +40,7 @@ from typing import Callable, Iterator
 
 import torch
 
+from isaacgymenvs_mw.sim.graph_engine import refreshes_kinematics
 from isaacgymenvs_mw.tasks.base.python_state import PythonStateWatch
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP
@@ -210,12 +211,17 @@ class _CompiledStep:
 
     def __init__(self, fn: Callable[[], None]) -> None:
         self._inductor = torch._TorchCompileInductorWrapper(None, {"fallback_random": True}, False)
+        # A step that refreshes the kinematics keeps its code order around the refresh (sim/graph_engine.py,
+        # refreshes_kinematics says why): the refresh then needs no copies of the simulator's arrays.
+        self._inductor_in_order = torch._TorchCompileInductorWrapper(
+            None, {"fallback_random": True, "reorder_for_locality": False}, False)
         self._dry = False
         self.compiles = 0  # graphs compiled so far
         self.fn = torch.compile(_with_own_code(fn), backend=self._backend, dynamic=False)
 
     def _backend(self, gm: torch.fx.GraphModule, example_inputs: list) -> Callable:
-        compiled = self._inductor(gm, example_inputs)
+        inductor = self._inductor_in_order if refreshes_kinematics(gm.graph) else self._inductor
+        compiled = inductor(gm, example_inputs)
         self.compiles += 1
 
         def run(*args):
