@@ -7,6 +7,18 @@ Images: a task's image group ("camera") holds uint8 pixels so that rollout stora
 exported ONNX / TorchScript policies all take the task's raw 0-255 images.
 
 Train YAML: ``actor: {class_name: isaacgymenvs_mw.learning.models:ImageCNNModel, cnn_cfg: {...}, ...}``.
+
+Two options of the image model speed its CNNs up on a GPU, both off by default (docs/config.md):
+
+* ``cnn_precision: bfloat16`` runs the convolutions under ``torch.autocast`` in bfloat16 (forward and backward; the
+  MLP after the CNN stays float32). The pixels become bfloat16 directly (integers 0-255 are exact in bfloat16; the
+  scaled value is rounded to bfloat16 as autocast would round the float32 one), sparing a float32 copy of the batch. The autocast cache is off, which CUDA graph
+  capture asks for; the CNN's weights are a few thousand numbers, so casting them at each call costs nothing.
+* ``cnn_channels_last: True`` hands the convolutions their input in channels-last memory order (NHWC), the order in
+  which cuDNN's fastest convolution kernels read it. Only the input is reordered: the weights keep their layout, so
+  the optimiser's flat gradient buffer and checkpoints are unchanged (cuDNN reorders the tiny weights by itself).
+
+Exported policies (ONNX, TorchScript) run the CNNs in float32 and contiguous order whatever the options.
 """
 
 from __future__ import annotations
@@ -17,30 +29,73 @@ from rsl_rl.models import CNNModel, MLPModel
 from rsl_rl.utils import unpad_trajectories
 from tensordict import TensorDict
 
+from isaacgymenvs_mw.learning.train_config import CNN_PRECISIONS
+from isaacgymenvs_mw.utils.config import boolean, one_of
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 
-class ByteImageEncoder(nn.Module):
-    """A CNN whose input is 0-255 pixels (uint8 or float): ``cnn(x / 255)``."""
+_DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16}
 
-    def __init__(self, cnn: nn.Module) -> None:
+
+class ByteImageEncoder(nn.Module):
+    """A CNN whose input is 0-255 pixels (uint8 or float): ``cnn(x / 255)``, in ``precision`` (float32 or bfloat16
+    under autocast) and optionally with its input in channels-last order. Its output is float32 either way."""
+
+    def __init__(self, cnn: nn.Module, precision: str = CNN_PRECISIONS[0], channels_last: bool = False) -> None:
         super().__init__()
         self.cnn = cnn
         self.output_dim = cnn.output_dim
         self.output_channels = cnn.output_channels
+        self.precision = precision
+        self.channels_last = channels_last
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.cnn(x.float() * (1.0 / 255.0))
+        dtype = _DTYPES[self.precision]
+        layout = torch.channels_last if self.channels_last else torch.preserve_format
+        pixels = x.to(dtype=dtype, memory_format=layout) * (1.0 / 255.0)  # one copy: cast and reorder together
+        if dtype == torch.float32:
+            return self.cnn(pixels)
+        with torch.autocast(device_type=x.device.type, dtype=dtype, cache_enabled=False):
+            return self.cnn(pixels).float()
 
 
 class ImageCNNModel(CNNModel):
-    """``rsl_rl.models.CNNModel`` whose image groups are 0-255 pixels; same arguments."""
+    """``rsl_rl.models.CNNModel`` whose image groups are 0-255 pixels; its arguments plus ``cnn_precision``
+    (``float32`` or ``bfloat16``) and ``cnn_channels_last`` (train YAML ``<actor|critic>.cnn_*``)."""
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
+    def __init__(self, obs: TensorDict, obs_groups: dict[str, list[str]], obs_set: str, *args,
+                 cnn_precision: str = CNN_PRECISIONS[0], cnn_channels_last: bool = False, **kwargs) -> None:
+        precision = one_of(cnn_precision, f"train.{obs_set}.cnn_precision", CNN_PRECISIONS)
+        channels_last = boolean(cnn_channels_last, f"train.{obs_set}.cnn_channels_last")
+        super().__init__(obs, obs_groups, obs_set, *args, **kwargs)
         for group, cnn in list(self.cnns.items()):
             if not isinstance(cnn, ByteImageEncoder):  # CNNs shared with another model come wrapped already
-                self.cnns[group] = ByteImageEncoder(cnn)
+                self.cnns[group] = ByteImageEncoder(cnn, precision, channels_last)
+
+    def as_jit(self) -> nn.Module:
+        return _plain_encoders(super().as_jit())
+
+    def as_onnx(self, verbose: bool = False) -> nn.Module:
+        return _plain_encoders(super().as_onnx(verbose))
+
+
+def _plain_encoders(exported: nn.Module) -> nn.Module:
+    """An export's copies of the encoders in float32 and contiguous order (what a deployment runtime runs), as a
+    module TorchScript can compile (it cannot compile the options' autocast)."""
+    for i, encoder in enumerate(exported.cnns):
+        exported.cnns[i] = _ExportedImageEncoder(encoder.cnn)
+    return exported
+
+
+class _ExportedImageEncoder(nn.Module):
+    """``ByteImageEncoder`` with its defaults, for exported policies: ``cnn(x / 255)`` in float32."""
+
+    def __init__(self, cnn: nn.Module) -> None:
+        super().__init__()
+        self.cnn = cnn
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.cnn(x.float() * (1.0 / 255.0))
 
 
 class SharedTrunkCritic(nn.Module):

@@ -62,7 +62,8 @@ class SyncFreePPO(PPO):
     the rate never moves, so a bound other than its default is refused rather than ignored.
 
     ``capture_update`` (``auto``, ``True``, ``False``; train YAML ``algorithm.capture_update``): replay the update as
-    a CUDA graph. ``auto`` captures where it can: a CUDA device, feed-forward networks, no mixed precision.
+    a CUDA graph. ``auto`` captures where it can: a CUDA device, feed-forward networks, no mixed precision
+    (``use_mixed_precision``; an image model's ``cnn_precision: bfloat16`` is captured: its autocast keeps no cache).
     The first update runs eagerly (it creates Adam's state), the second captures. With several GPUs call
     ``release_graph`` before leaving the process group (the training launcher does).
 

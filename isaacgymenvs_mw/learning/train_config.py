@@ -16,6 +16,9 @@ KL_SCHEDULES = ("per_mini_batch", "per_epoch")
 KL_FORMS = ("rsl_rl", "rl_games")
 GRAD_CLIP_SCOPES = ("per_network", "global")
 OBS_NORMALIZATION_FORMS = ("rsl_rl", "rl_games")
+# ImageCNNModel's options (learning/models.py): the precision of its convolutions, the first the default.
+CNN_PRECISIONS = ("float32", "bfloat16")
+IMAGE_MODEL = "isaacgymenvs_mw.learning.models:ImageCNNModel"
 
 
 # Train YAML keys that rsl_rl would otherwise take as they come: (section, key) -> check.
@@ -43,6 +46,10 @@ _TRAIN_CHECKS = {
     ("algorithm", "share_trunk"): boolean,
     ("actor", "obs_normalization"): boolean,
     ("critic", "obs_normalization"): boolean,
+    ("actor", "cnn_precision"): lambda v, k: one_of(v, k, CNN_PRECISIONS),
+    ("critic", "cnn_precision"): lambda v, k: one_of(v, k, CNN_PRECISIONS),
+    ("actor", "cnn_channels_last"): boolean,
+    ("critic", "cnn_channels_last"): boolean,
 }
 _SCHEDULES = ("adaptive", "fixed")
 
@@ -73,6 +80,13 @@ def check_train_config(train_cfg: dict, learner: str | None = None) -> None:
     for (section, key), check in _TRAIN_CHECKS.items():
         if key in (train_cfg.get(section) or {}):
             check(train_cfg[section][key], f"train.{section}.{key}")
+    for section in ("actor", "critic"):
+        model = train_cfg.get(section) or {}
+        for key in ("cnn_precision", "cnn_channels_last"):
+            if key in model and model.get("class_name") != IMAGE_MODEL:
+                raise ConfigError(f"train.{section}.{key} is read only by the image model: set "
+                                  f"train.{section}.class_name={IMAGE_MODEL} or remove it "
+                                  f"(train.{section}.class_name={model.get('class_name')!r})")
     schedule = (train_cfg.get("algorithm") or {}).get("schedule", "adaptive")
     one_of(schedule, "train.algorithm.schedule", _SCHEDULES)
     for section in ("actor", "critic"):
