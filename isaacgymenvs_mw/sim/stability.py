@@ -253,10 +253,7 @@ def probe_key(model: mujoco.MjModel, steps: int = PROBE_STEPS, starts: int = PRO
 def cached_probe(model: mujoco.MjModel) -> ProbeResult:
     """``probe_divergence(model)``, read back from ``probe_cache_dir()`` when this very model was probed before
     (``probe_key``); otherwise probed and kept. A missing, unreadable or unwritable cache only costs the probe."""
-    try:
-        path = probe_cache_dir() / f"{probe_key(model)}.json"
-    except (RuntimeError, KeyError, OSError):  # no home folder to keep it in (Path.home()), or no source to digest
-        return probe_divergence(model)
+    path = probe_cache_dir() / f"{probe_key(model)}.json"
     try:
         kept = json.loads(path.read_text())
         if isinstance(kept, dict) and set(kept) == {f.name for f in fields(ProbeResult)} and \
