@@ -8,7 +8,6 @@ dt * sqrt(kp / I) lands just below or just above the limit, so a wrong limit or 
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 
@@ -222,7 +221,7 @@ LEG_DT = 0.01  # BallBalance's
 
 
 def build_leg(tmp_path, kp: float, kd: float, integrator: str, armature: float = 0.0, joint_damping: float = 0.0,
-              pinned: bool = True, probe: bool = True, dt: float = LEG_DT):
+              pinned: bool = True, probe: bool = True):
     path = tmp_path / "leg.xml"
     path.write_text(LEG_MJCF.replace("{equality}", PIN if pinned else ""))
     legs = ("hip", "knee")
@@ -231,7 +230,7 @@ def build_leg(tmp_path, kp: float, kd: float, integrator: str, armature: float =
         drives={j: JointDrive("position", kp, kd) for j in legs},
         armature={j: armature for j in legs} if armature else {},
         joint_damping={j: joint_damping for j in legs} if joint_damping else {},
-        options=SolverOptions(dt=dt, integrator=integrator, enable_contacts=False), stability_probe=probe)
+        options=SolverOptions(dt=LEG_DT, integrator=integrator, enable_contacts=False), stability_probe=probe)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         model = build_model(request)
@@ -371,77 +370,3 @@ def test_run_time_check_catches_the_closed_chain_that_drifts_apart(tmp_path):
     with pytest.warns(RuntimeWarning, match="blew up"):
         message = blowups.poll()
     assert "First diverging: equality constraint 'foot_pin'" in message, message
-
-
-# ---------------------------------------------------------------- the kept verdict (sim.stability.cached_probe)
-def _counted_probes(monkeypatch, tmp_path) -> list:
-    """Probe verdicts kept under tmp_path (beside a Warp cache there), and a list that grows by one per real probe."""
-    from isaacgymenvs_mw.sim import stability
-
-    monkeypatch.setenv("WARP_CACHE_PATH", str(tmp_path / "cache" / "warp"))
-    runs, probe = [], stability.probe_divergence
-
-    def counted(model, *args, **kwargs):
-        runs.append(model)
-        return probe(model, *args, **kwargs)
-
-    monkeypatch.setattr(stability, "probe_divergence", counted)
-    return runs
-
-
-def _verdict(result) -> tuple:
-    return result.diverged, result.steps, result.start, result.time, result.reason
-
-
-def test_probe_verdict_is_kept_and_read_back_for_the_same_model(tmp_path, monkeypatch):
-    """A second build of the same model reads the verdict back (no MuJoCo C steps) and warns word for word as the
-    first; the kept verdict is the probe's own, and the leg does diverge in MuJoCo C (the independent reference)."""
-    from isaacgymenvs_mw.sim.stability import cached_probe, probe_cache_dir
-
-    runs = _counted_probes(monkeypatch, tmp_path)
-    model, first = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    assert len(runs) == 1 and probe_cache_dir() == tmp_path / "cache" / "isaacgymenvs_mw" / "stability_probe"
-    assert len(list(probe_cache_dir().glob("*.json"))) == 1
-    again, second = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    assert len(runs) == 1, "the unchanged model was probed again"
-    assert second == first and any("will blow its worlds up" in m for m in first), first
-    kept = cached_probe(again)
-    assert len(runs) == 1
-    assert _verdict(kept) == _verdict(probe_divergence(model)) and kept.diverged
-    assert leg_diverges_in_mujoco_c(model)
-
-
-def test_a_changed_model_is_probed_again(tmp_path, monkeypatch):
-    """Other gains, another integrator or only another timestep make another model: each is probed, each keeps its
-    own verdict (the stable leg stays stable, the stiff one diverges), and each is read back afterwards."""
-    runs = _counted_probes(monkeypatch, tmp_path)
-    _, stable = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1)
-    _, stiff = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    assert len(runs) == 2
-    assert all("may be" in m and "stayed stable" in m for m in stable) and len(stable) == 2
-    assert any("will blow its worlds up" in m for m in stiff)
-    build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1, dt=LEG_DT / 2)  # only the timestep differs
-    assert len(runs) == 3
-    _, stable_again = build_leg(tmp_path, 1000.0, 10.0, "euler", armature=0.1)
-    _, stiff_again = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    assert len(runs) == 3 and stable_again == stable and stiff_again == stiff
-
-
-def test_an_unusable_probe_cache_only_costs_the_probe(tmp_path, monkeypatch):
-    """A damaged kept verdict is probed again and replaced; a cache folder that cannot be made (its parent is a
-    file) probes every time and warns the same."""
-    from isaacgymenvs_mw.sim.stability import probe_cache_dir
-
-    runs = _counted_probes(monkeypatch, tmp_path)
-    _, first = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    (kept,) = probe_cache_dir().glob("*.json")
-    kept.write_text('{"diverged": "no"')
-    _, second = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    assert len(runs) == 2 and second == first
-    assert json.loads(kept.read_text())["diverged"] is True
-    blocked = tmp_path / "blocked"
-    blocked.write_text("a file where the cache folder would go")
-    monkeypatch.setenv("WARP_CACHE_PATH", str(blocked / "warp"))
-    _, third = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    _, fourth = build_leg(tmp_path, 4000.0, 100.0, "implicitfast")
-    assert len(runs) == 4 and third == fourth == first

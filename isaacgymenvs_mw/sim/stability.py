@@ -35,31 +35,20 @@ from a few perturbed ones, the drives holding the initial pose, and looks for wh
 NaN/inf state, a joint speed above ``DIVERGED_SPEED``, an equality constraint violated by more than
 ``EQUALITY_DIVERGED``). The wording is graded by certainty: "will blow its worlds up" only when the probe diverged;
 "may be numerically unstable" when only the single-joint estimate says so; nothing when neither does.
-
-The probe's verdict is a function of the compiled model alone, so it is kept on disk (``cached_probe``), beside Warp's
-kernel cache, under a digest of the model's binary (``mj_saveModel``), the probe's settings, this file's and
-sim/divergence.py's code, MuJoCo's version and the machine type: a start with an unchanged model reads the verdict
-back instead of stepping MuJoCo C again (0.03-0.1 s on a 2-core CPU), and any change to the model probes anew.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
-import os
-import platform
 import time
 import warnings
 from collections.abc import Collection
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from isaacgymenvs_mw.sim.divergence import DIVERGED_SPEED, EQUALITY_DIVERGED, object_name
-from isaacgymenvs_mw.utils.files import atomic_save
 
 # A drive is reported when dt·ω exceeds this fraction of its integrator's limit (a factor 2 in frequency, 4 in kp).
 SAFETY = 0.5
@@ -226,50 +215,6 @@ def probe_divergence(model: mujoco.MjModel, steps: int = PROBE_STEPS, starts: in
     return ProbeResult(False, taken, time.perf_counter() - began)
 
 
-def probe_cache_dir() -> Path:
-    """The folder of kept probe verdicts: beside Warp's kernel cache, i.e. ``isaacgymenvs_mw/stability_probe`` in
-    the parent of ``WARP_CACHE_PATH`` when that is set, else in the user's cache folder (``XDG_CACHE_HOME``, else
-    ``~/.cache``), where Warp keeps its own. Emptying the compile caches for a cold start empties this one too."""
-    warp_cache = os.environ.get("WARP_CACHE_PATH")
-    base = Path(warp_cache).parent if warp_cache else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    return base / "isaacgymenvs_mw" / "stability_probe"
-
-
-def probe_key(model: mujoco.MjModel, steps: int = PROBE_STEPS, starts: int = PROBE_STARTS, seed: int = 0) -> str:
-    """What the probe's verdict depends on, as one hex digest: the compiled model (its binary, every field and
-    option), the probe's settings, the code that steps and judges it (this file, sim/divergence.py), MuJoCo's version
-    and the machine type (another CPU may round differently near a divergence)."""
-    binary = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
-    mujoco.mj_saveModel(model, None, binary)
-    digest = hashlib.sha256(binary.tobytes())
-    for code in (__file__, object_name.__code__.co_filename):  # this file and sim/divergence.py
-        digest.update(Path(code).read_bytes())
-    settings = (steps, starts, seed, PROBE_SPEED, DIVERGED_SPEED, EQUALITY_DIVERGED, mujoco.__version__,
-                platform.machine())
-    digest.update(repr(settings).encode())
-    return digest.hexdigest()
-
-
-def cached_probe(model: mujoco.MjModel) -> ProbeResult:
-    """``probe_divergence(model)``, read back from ``probe_cache_dir()`` when this very model was probed before
-    (``probe_key``); otherwise probed and kept. A missing, unreadable or unwritable cache only costs the probe."""
-    path = probe_cache_dir() / f"{probe_key(model)}.json"
-    try:
-        kept = json.loads(path.read_text())
-        if isinstance(kept, dict) and set(kept) == {f.name for f in fields(ProbeResult)} and \
-                isinstance(kept["diverged"], bool):
-            return ProbeResult(**kept)
-    except (OSError, ValueError):
-        pass
-    result = probe_divergence(model)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_save(path, lambda partial: Path(partial).write_text(json.dumps(asdict(result))))
-    except OSError:  # read-only or full: the next build probes again
-        pass
-    return result
-
-
 def warn_unstable_drives(model: mujoco.MjModel, yaml_drives: Collection[str] = (),
                          probe: bool = True) -> tuple[list[DriveStability], ProbeResult | None]:
     """Warn about PD drives that are or may be numerically unstable; returns the drives past ``SAFETY`` times their
@@ -282,7 +227,7 @@ def warn_unstable_drives(model: mujoco.MjModel, yaml_drives: Collection[str] = (
     other position actuators are the asset's own (their ``kp``/``kv`` are in the MJCF).
     """
     bad = [s for s in drive_stability(model) if s.unstable]
-    result = cached_probe(model) if probe else None
+    result = probe_divergence(model) if probe else None
     if result is None:
         seen = "the build-time probe is off (sim.stabilityProbe: False)"
     elif result.diverged:
