@@ -56,7 +56,6 @@ PHASES = (
     ("isaacgymenvs_mw.sim.kernels", "init_warp", "Warp init"),
     ("isaacgymenvs_mw.sim.builder", "build_model", "model build (MjSpec edits, compile, stability probe)"),
     ("mujoco", "MjSpec.compile", "MjSpec.compile"),
-    ("isaacgymenvs_mw.sim.stability", "cached_probe", "stability verdict (kept, or probed)"),
     ("isaacgymenvs_mw.sim.stability", "probe_divergence", "stability probe (MuJoCo C steps)"),
     ("isaacgymenvs_mw.sim.memory", "check_worlds_fit", "memory check"),
     ("mujoco_warp", "put_model", "put_model"),
