@@ -27,27 +27,5 @@ bash "$here/gpu_train_eval.sh" "$out" "$seconds" \
   "both 2 ShadowHand 1 $batch $trunk" \
   "obsform 3 ShadowHand 1 +train.algorithm.obs_normalization_form=rl_games"
 # One line per variant: consecutive successes with the best and the last checkpoint, training speed.
-python3 - "$out" <<'PY' | tee "$out/results.txt"
-import json, pathlib, sys
-out = pathlib.Path(sys.argv[1])
-def read(path):
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {}
-def metric(d):
-    for key in ("consecutive_successes", "task/consecutive_successes"):
-        for where in (d, d.get("metrics", {}), d.get("task_metrics", {})):
-            if isinstance(where, dict) and key in where:
-                return where[key]
-    return None
-for name in ("batch", "trunk", "both", "obsform"):
-    best, last = read(out / f"{name}.eval_best.json"), read(out / f"{name}.eval_last.json")
-    summary = read(out / f"{name}.summary.json")
-    speed = summary.get("env_steps_per_s") or summary.get("steps_per_s")
-    print(f"{name}: best {metric(best)}, last {metric(last)}, env-steps/s {speed}, "
-          f"iterations {summary.get('iterations')}")
-    if metric(best) is None:
-        print(f"  {name}.eval_best.json: {json.dumps(best)[:600]}")
-PY
+python3 "$here/rounds/hands_results.py" "$out" batch trunk both obsform | tee "$out/results.txt"
 touch "$out/done"
