@@ -97,8 +97,9 @@ def test_checkpoint_round_trip_keeps_the_shared_model():
 @pytest.mark.parametrize(("change", "message"), [
     (lambda cfg: cfg["obs_groups"].update(critic=["critic"]),
      r"^train\.algorithm\.share_trunk=True needs train\.runner\.obs_groups\.critic equal to "
-     r"train\.runner\.obs_groups\.actor \(the value reads the policy's trunk\), got \['critic'\] and \['policy'\]; "
-     r"give train\.runner\.obs_groups\.critic=\['policy'\]$"),
+     r"train\.runner\.obs_groups\.actor \(the value reads the policy's trunk\), got \['critic'\] and \['policy'\] "
+     r"\(a privileged critic state, e\.g\. task\.env\.asymmetric_observations=True\); "
+     r"give train\.runner\.obs_groups\.critic=\['policy'\] or train\.algorithm\.share_trunk=False$"),
     (lambda cfg: cfg["algorithm"].update(share_trunk="yes"),
      r"^train\.algorithm\.share_trunk='yes' is invalid: give True or False$"),
     (lambda cfg: cfg["actor"].update(class_name="RNNModel", rnn_type="gru", rnn_hidden_dim=8, rnn_num_layers=1),
@@ -112,6 +113,21 @@ def test_bad_settings_name_the_key(change, message):
     change(cfg)
     with pytest.raises(ConfigError, match=message):
         SyncFreePPO.construct_algorithm(obs, FakeEnv(), cfg, "cpu")
+
+
+def test_a_critic_group_bound_to_the_policys_tensor_reads_the_trunk():
+    # Without privileged states the env gives the critic group the policy's own tensor (learning/vecenv.py), so a
+    # recipe's `critic: [critic]` names the policy's observation, and a shared trunk accepts it.
+    cfg = train_cfg(SYNC_FREE, share_trunk=True)
+    cfg["obs_groups"]["critic"] = ["critic"]
+    obs = observations(torch.Generator().manual_seed(1))
+    obs["critic"] = obs["policy"]
+    alg = SyncFreePPO.construct_algorithm(obs, FakeEnv(), cfg, "cpu")
+    assert cfg["obs_groups"]["critic"] == ["policy"]
+    assert type(alg.critic).__name__ == "SharedTrunkCritic" and alg.critic._actor is alg.actor
+    x = TensorDict({"policy": torch.randn(4, OBS)}, batch_size=[4])  # no "critic" entry: the value reads the policy's
+    with torch.no_grad():
+        assert alg.critic(x).shape == (4, 1)
 
 
 def test_share_trunk_false_builds_separate_networks():

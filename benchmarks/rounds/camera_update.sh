@@ -22,13 +22,13 @@ order="base bf16 nhwc both"
 nvidia-smi --query-gpu=name,memory.used,utilization.gpu --format=csv > "$out/gpu.txt" 2>&1
 
 if [ "$part" = speed ] || [ "$part" = all ]; then
-  # Training env-steps/s (5 timed iterations after 2 warm-up ones; the update is captured from the second on).
+  # Training env-steps/s (throughput.py prints its progress lines, then the JSON object on the last line; 5 timed iterations after 2 warm-up ones; the update is captured from the second on).
   # base runs first and last: the two base numbers bound the drift of the machine over the round.
   for name in $order base; do
     # shellcheck disable=SC2086
     python3 benchmarks/throughput.py --task CartpoleCamera --num_envs 4096 --sim_device cuda:0 --steps 200 \
       --train_iterations 5 ${variants[$name]} > "$out/speed_$name.json" 2> "$out/speed_$name.err"
-    python3 -c "import json,sys; r=json.load(open(sys.argv[1])); print(sys.argv[2], 'train %.3f M/s' % (r['train_env_steps_per_s']/1e6), 'VecTask.step %.3f M/s' % (r['vectask_env_steps_per_s']/1e6), r['device'])" \
+    python3 -c "import json,sys; r=json.loads(open(sys.argv[1]).read().splitlines()[-1]); print(sys.argv[2], 'train %.3f M/s' % (r['train_env_steps_per_s']/1e6), 'VecTask.step %.3f M/s' % (r['vectask_env_steps_per_s']/1e6), r['device'])" \
       "$out/speed_$name.json" "$name" 2>&1 | tee -a "$out/speed.txt"
   done
 fi

@@ -172,12 +172,17 @@ class SyncFreePPO(PPO):
         built = {**cfg, "algorithm": algorithm}
         if share:
             groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
-            if list(groups["critic"]) != list(groups["actor"]):
+            if _same_observations(obs, groups["critic"], groups["actor"]):
+                # A task without privileged states hands the policy's tensor to the critic group too (the hands'
+                # `critic: [critic]` then means the policy's observation): the trunk reads the actor's groups.
+                built["obs_groups"] = {**groups, "critic": list(groups["actor"])}
+            else:
                 raise ConfigError(
                     f"train.algorithm.share_trunk=True needs train.runner.obs_groups.critic equal to "
                     f"train.runner.obs_groups.actor (the value reads the policy's trunk), got "
-                    f"{list(groups['critic'])} and {list(groups['actor'])}; give "
-                    f"train.runner.obs_groups.critic={list(groups['actor'])}")
+                    f"{list(groups['critic'])} and {list(groups['actor'])} (a privileged critic state, e.g. "
+                    f"task.env.asymmetric_observations=True); give train.runner.obs_groups.critic="
+                    f"{list(groups['actor'])} or train.algorithm.share_trunk=False")
             # rsl-rl-lib builds the actor, then the critic from the class its section names: the actor is kept on
             # the way so that the critic can be its value head.
             actor_class, actor_cfg = resolve_class(dict(cfg["actor"]))
@@ -568,3 +573,13 @@ class SyncFreePPO(PPO):
             self.value_normalizer.load_state_dict(loaded_dict[VALUE_NORMALIZER_KEY])
         self._install_device_learning_rate()
         return resume_iteration
+
+
+def _same_observations(obs: TensorDict, groups: list[str], other: list[str]) -> bool:
+    """Whether two observation groups give the same tensors (the same names, or names bound to one tensor)."""
+    if list(groups) == list(other):
+        return True
+    if len(groups) != len(other):
+        return False
+    return all(obs[a] is obs[b] or (obs[a].data_ptr() == obs[b].data_ptr() and obs[a].shape == obs[b].shape)
+               for a, b in zip(groups, other))
