@@ -23,5 +23,5 @@ bash "$here/gpu_train_eval.sh" "$out" "$seconds" \
   "trunk 2 ShadowHand 1 num_envs=16384 train.algorithm.share_trunk=False" \
   "obsform 3 ShadowHand 1 num_envs=16384 train.algorithm.obs_normalization_form=rsl_rl"
 # One line per variant: consecutive successes with the best and the last checkpoint, training speed.
-python3 "$here/rounds/hands_results.py" "$out" shipped batch trunk obsform | tee "$out/results.txt"
+python3 "$here/rounds/round_results.py" "$out" shipped batch trunk obsform | tee "$out/results.txt"
 touch "$out/done"

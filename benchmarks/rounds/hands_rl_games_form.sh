@@ -20,5 +20,5 @@ form="$form +train.algorithm.obs_normalization_form=rl_games"
 bash "$here/gpu_train_eval.sh" "$out" "$seconds" \
   "shadow 0 ShadowHand $seed $form" \
   "allegro 1 AllegroHand $seed $form"
-python3 "$here/rounds/hands_results.py" "$out" shadow allegro | tee "$out/results.txt"
+python3 "$here/rounds/round_results.py" "$out" shadow allegro | tee "$out/results.txt"
 touch "$out/done"
