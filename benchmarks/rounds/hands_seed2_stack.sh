@@ -5,6 +5,10 @@
 # 20 minutes; it has never been trained on a GPU).
 #   GPU 0  ShadowHand seed 2, 900 s        GPU 2  FrankaCubeStack seed 1, 1200 s
 #   GPU 1  AllegroHand seed 2, 900 s       GPU 3  FrankaCubeStack seed 2, 1200 s
+# While FrankaCubeStack trains on, GPUs 0 and 1 run BallBalance (250 iterations, seeds 1, 7 then 2, 8) with every
+# rl_games setting the hands' recipes now carry (its target, >= 95 % of test episodes in 4 of 4 seeds, was missed
+# with its recipe: 97.5 / 91.6 / 94.6 / 93.7 % on 2026-11-27). IsaacGymEnvs' BallBalancePPO is a shared network
+# with a fixed log-sigma as well.
 # Test mode: seed 11, the best and the last checkpoint; the hands on 16384 envs (the overrides reach test mode),
 # FrankaCubeStack on 1024.
 #
@@ -14,12 +18,20 @@ set -uo pipefail
 out=${1:-/tmp/hands_seed2_stack}
 here=$(cd "$(dirname "$0")/.." && pwd)
 rm -f "$out/done"
-bash "$here/gpu_train_eval.sh" "$out" "${HAND_SECONDS:-900}" \
-  "shadow2 0 ShadowHand 2 num_envs=16384" \
-  "allegro2 1 AllegroHand 2 num_envs=16384" &
+form="+train.algorithm.kl_schedule=per_epoch +train.algorithm.kl_form=rl_games +train.algorithm.grad_clip_scope=global"
+form="$form +train.algorithm.obs_normalization_clip=5.0 +train.algorithm.learning_rate_min=1e-6"
+form="$form +train.algorithm.share_trunk=True +train.algorithm.obs_normalization_form=rl_games"
+form="$form train.actor.distribution_cfg.std_type=log"
+(
+  bash "$here/gpu_train_eval.sh" "$out" "${HAND_SECONDS:-900}" \
+    "shadow2 0 ShadowHand 2 num_envs=16384" \
+    "allegro2 1 AllegroHand 2 num_envs=16384"
+  bash "$here/gpu_train_eval.sh" "$out" 600 "balance1 0 BallBalance 1 $form" "balance7 1 BallBalance 7 $form"
+  bash "$here/gpu_train_eval.sh" "$out" 600 "balance2 0 BallBalance 2 $form" "balance8 1 BallBalance 8 $form"
+) &
 bash "$here/gpu_train_eval.sh" "$out" "${STACK_SECONDS:-1200}" \
   "stack1 2 FrankaCubeStack 1" \
   "stack2 3 FrankaCubeStack 2" &
 wait
-python3 "$here/rounds/round_results.py" "$out" shadow2 allegro2 stack1 stack2 | tee "$out/results.txt"
+python3 "$here/rounds/round_results.py" "$out" shadow2 allegro2 stack1 stack2 balance1 balance2 balance7 balance8 | tee "$out/results.txt"
 touch "$out/done"
