@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import threading
 
 import pytest
 import warp as wp
@@ -72,6 +73,26 @@ def test_compiled_and_cached_modules_are_counted_by_module(own_cache, capsys):
     (shift_folder,) = own_cache.glob(f"wp_{_shift.module.name}_*")  # Warp's folder of the module's binaries
     shutil.rmtree(shift_folder)
     assert _load(capsys).endswith(f"(1 compiled on 2 threads, 1 from the cache {own_cache})")
+
+
+def test_every_module_is_hashed_in_the_calling_thread_before_the_pool_starts(own_cache, capsys, monkeypatch):
+    # Warp names a module's cache folder after its content hash. Computed by a pool thread, it could depend on what
+    # the other threads' code generation was doing at the time (issue 61); the load computes each before the pool.
+    hashed_by: list[tuple[str, int]] = []
+    original = wp._src.context.ModuleHasher.__init__
+
+    def recording_init(self, live_kernels, options):
+        hashed_by.extend((k.module.name, threading.get_ident()) for k in live_kernels)
+        original(self, live_kernels, options)
+
+    monkeypatch.setattr(wp._src.context.ModuleHasher, "__init__", recording_init)
+    _load(capsys)
+    names = {m.name for m in MODULES}
+    assert {name for name, _ in hashed_by} >= names  # both were hashed afresh (unloaded first)...
+    assert {ident for name, ident in hashed_by if name in names} == {threading.get_ident()}  # ...in this thread
+    # and under the names their cache folders have.
+    folders = {p.name for p in own_cache.iterdir()}
+    assert {m.get_module_identifier(1) for m in MODULES} <= folders
 
 
 def test_load_detail_counts_never_go_below_zero():

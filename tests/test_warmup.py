@@ -11,6 +11,7 @@ import os
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -66,9 +67,10 @@ def test_warm_up_fills_warps_cache_once_and_writes_no_run(tmp_path):
         assert again.returncode == 0, again.stderr[-3000:]
         now = files_under(warp_cache)
         # The cache serves the second warm-up: no file of the first rewritten, and Warp's own account reads the
-        # modules back. Known defect (issue 61, 2026-11-27): under load, one module (MuJoCo Warp's smooth) can come
-        # out with another content hash than in the first process and is compiled again (2 of 4 CI runs); until
-        # its cause is found the account allows that one module, and the warm-up must report what the folder gained.
+        # modules back. Known defect (issue 61, 2026-11-27): under load, one module (MuJoCo Warp's smooth) was
+        # compiled again in 2 of 4 CI runs. Not reproduced since (13 runs, 3 at a time; sim/kernels.py now names every
+        # module's cache entry before the pool starts, out of the pool's threads); until a CI run shows what the
+        # folder gained, the account allows that one module and a warning names the new files.
         assert {k: now[k] for k in filled} == filled
         account = re.search(r"Warp kernels on cpu: (\d+) modules ready in [\d.]+ s \((?:all from the cache|(\d+) "
                             r"compiled on \d+ threads?, (\d+) from the cache)", again.stdout)
@@ -76,6 +78,9 @@ def test_warm_up_fills_warps_cache_once_and_writes_no_run(tmp_path):
         assert account[2] is None or (int(account[2]) <= 1 and int(account[3]) == int(account[1]) - int(account[2])), \
             again.stdout
         assert int(LINE.search(again.stdout)[2]) == len(now) - len(filled), again.stdout
+        if account[2] is not None and int(account[2]):
+            warnings.warn(f"issue 61: the warm-up with num_envs={num_envs} compiled {account[2]} module(s) again; "
+                          f"new files: {sorted(set(now) - set(filled))}")
     assert not (tmp_path / "runs").exists() and list((tmp_path / "work").iterdir()) == []
 
 

@@ -130,6 +130,25 @@ def _record_launches(entry_points: Sequence[Callable[[], None]]) -> list[tuple[o
     return list(found)
 
 
+def _pin_cache_names(pending: Sequence[tuple[object, int | None]], device: wp.context.Device) -> None:
+    """Name every pending module's cache entry now, in this thread, before the pool starts.
+
+    Warp names a module's cache folder and files after its content hash (and, on the CPU, a hash of the compile
+    target), computes both on first need and keeps them until the module changes. Left to the pool, each is
+    computed by whichever thread reaches the module first, interleaved with other modules' code generation and
+    with the process's first look-ups of the CPU target; computed here, once, they come from the state right after
+    the recording, the same in every process, so a later process finds what this one writes. A Warp without these
+    names only loses the pinning: the pool computes them as before."""
+    context = wp._src.context
+    resolve = getattr(context, "_resolve_launch_block_dim", None)
+    for module, block_dim in pending:
+        try:  # the variant force_load will load: on the CPU an omitted block size is one, as for a launch
+            dim = resolve(device, block_dim) if resolve is not None else block_dim
+            module._get_compile_output_name(device, block_dim=dim)  # content hash, then the target's name
+        except Exception:  # noqa: BLE001  (a Warp that names them otherwise: nothing is pinned, nothing else)
+            return
+
+
 def _cache_files() -> dict[str, set[str]]:
     """The kernel cache's files by module folder (Warp keeps a module's binaries and metadata in a folder named
     after its identifier), read before a load: a module whose folder gains a file was compiled, not read back."""
@@ -223,6 +242,7 @@ class KernelLoad:
             recorded = None
         self.recorded = recorded is not None
         self.pending = [(m, bd) for m, bd in recorded or () if (m, str(device), bd) not in _loaded]
+        _pin_cache_names(self.pending, device)
         self.workers = max(1, int(max_workers or os.cpu_count() or 1))
         self._stop = threading.Event()  # set when the waiting thread gives up: drop the modules not yet started
         self._error: BaseException | None = None
