@@ -6,15 +6,22 @@
 #
 # Writes OUT_DIR/<NAME>.train.log, <NAME>.eval_best.log, <NAME>.eval_last.log, <NAME>.summary.json and
 # <NAME>.eval_{best,last}.json; OUT_DIR/<NAME>.done when the job has finished. The overrides go to training and
-# evaluation alike (learner=rl_games, train.* keys).
+# evaluation alike (learner=rl_games, train.* keys). DRY_RUN_OVERRIDES are added after every job's own, to try a round
+# on the CPU before spending GPU time on it:
+#   DRY_RUN_OVERRIDES="sim_device=cpu rl_device=cpu num_envs=8 max_iterations=2" bash benchmarks/rounds/<round>.sh OUT
+# (a dry run also keeps the machine's compile caches).
 set -u
 out=$1; seconds=$2; shift 2
 mkdir -p "$out"
 for spec in "$@"; do
   read -r name gpu task seed extra <<<"$spec"
+  extra="$extra ${DRY_RUN_OVERRIDES:-}"
   (
-    export CUDA_VISIBLE_DEVICES=$gpu PYTHONUNBUFFERED=1 WARP_CACHE_PATH=/tmp/cache/$name/warp \
-           TORCHINDUCTOR_CACHE_DIR=/tmp/cache/$name/inductor TRITON_CACHE_DIR=/tmp/cache/$name/triton
+    export CUDA_VISIBLE_DEVICES=$gpu PYTHONUNBUFFERED=1
+    if [ -z "${DRY_RUN_OVERRIDES:-}" ]; then  # a dry run keeps the machine's caches: it checks the round, not its speed
+      export WARP_CACHE_PATH=/tmp/cache/$name/warp TORCHINDUCTOR_CACHE_DIR=/tmp/cache/$name/inductor \
+             TRITON_CACHE_DIR=/tmp/cache/$name/triton
+    fi
     runs=/tmp/runs/$name
     # shellcheck disable=SC2086  # the overrides are words
     python train.py task="$task" seed="$seed" headless=True runs_dir="$runs" max_train_time_s="$seconds" \

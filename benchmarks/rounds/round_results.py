@@ -1,5 +1,6 @@
 """One line per run of a training round: the task's test-mode headline (the hands' consecutive successes, else the
-success rate) with the best and the last checkpoint, and the training speed.
+success rate, else the share of episodes to the time limit) with the best and the last checkpoint, and the training
+speed.
 
     python benchmarks/rounds/round_results.py OUT_DIR NAME [NAME ...]
 
@@ -20,7 +21,7 @@ def read(path: pathlib.Path) -> dict:
         return {}
 
 
-HEADLINES = ("consecutive_successes", "success")  # the first a report has is the one printed
+HEADLINES = ("consecutive_successes", "success", "timeout_fraction")  # the first a report has is printed
 
 
 def headline(report: dict) -> tuple[str, float] | tuple[None, None]:
@@ -38,7 +39,7 @@ def main(out: pathlib.Path, names: list[str]) -> None:
         summary = read(out / f"{name}.summary.json")
         speed = summary.get("env_steps_per_s") or summary.get("steps_per_s")
         key, value = headline(best)
-        print(f"{name}: {key} best {value}, last {headline(last)[1]}, env-steps/s {speed}, "
+        print(f"{name}: {key or headline(last)[0]} best {value}, last {headline(last)[1]}, env-steps/s {speed}, "
               f"iterations {summary.get('iterations')}")
         if value is None:
             print(f"  {name}.eval_best.json: {json.dumps(best)[:600]}")
