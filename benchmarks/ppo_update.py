@@ -1,11 +1,15 @@
 """Time one PPO update (all epochs and mini-batches) on a task's networks and batch size, without the simulator.
 
-The rollout storage is filled with synthetic observations and rewards of the task's sizes (numObservations,
-numStates, numActions, num_steps_per_env x num_envs), then `--updates` updates are timed one by one between CUDA
-events after `--warmup` untimed ones. Compares algorithm classes on identical work:
+The rollout storage is filled with synthetic observations and rewards of the task's sizes (each observation group's
+and the actions', which a 2-env build of the task reports; num_steps_per_env x num_envs samples), then `--updates`
+updates are timed one by one between CUDA events after `--warmup` untimed ones. Compares algorithm classes on identical
+work:
 
   python benchmarks/ppo_update.py --task Go1 --num_envs 4096 --algorithm SyncFreePPO --capture auto
   python benchmarks/ppo_update.py --task Go1 --num_envs 4096 --algorithm PPO
+
+A task with image terms (CartpoleCamera) gets random 0-255 uint8 images of its camera group's shape. ``--profile N`` then profiles N more updates and prints their GPU kernels, costliest first (give
+``--capture False``: a captured update shows as one graph launch). Hydra overrides go at the end.
 """
 
 from __future__ import annotations
@@ -30,20 +34,35 @@ class SizedEnv:
         self.num_envs, self.num_actions = num_envs, num_actions
 
 
-def build(task: str, num_envs: int, algorithm: str, capture: str, device: str):
+def observation_groups(overrides: list[str], device: str) -> tuple[dict[str, tuple[tuple[int, ...], torch.dtype]], int]:
+    """Each observation group's per-env shape and dtype, and the number of actions, from a 2-env build of the task
+    (the sizes are the task's terms', as training sees them; images keep their uint8 (C, H, W))."""
+    from isaacgymenvs_mw.tasks.build import build_task
+
+    cfg = compose_config([*overrides, "num_envs=2", f"sim_device={device}", f"rl_device={device}", "headless=True"])
+    task = build_task(cfg)
+    obs = task.reset()
+    sources = {"policy": obs["obs"], "critic": obs.get("states", obs["obs"])}
+    if "camera" in obs:
+        sources["camera"] = obs["camera"]
+    return {name: (tuple(t.shape[1:]), t.dtype) for name, t in sources.items()}, task.num_actions
+
+
+def build(task: str, num_envs: int, algorithm: str, capture: str, device: str, overrides: list[str]):
     from rsl_rl.algorithms import PPO
 
-    cfg = compose_config([f"task={task}", f"num_envs={num_envs}"])
-    env_cfg = cfg.task.env
+    cfg = compose_config([f"task={task}", *overrides, f"num_envs={num_envs}"])
     train_cfg = rsl_rl_config(to_dict(cfg.train))
     train_cfg["algorithm"]["class_name"] = CLASSES[algorithm]
     if algorithm == "SyncFreePPO":
         train_cfg["algorithm"]["capture_update"] = {"auto": "auto", "True": True, "False": False}[capture]
     train_cfg["multi_gpu"] = None
-    num_states = int(env_cfg.get("numStates", 0)) or int(env_cfg.numObservations)
-    obs = TensorDict({"policy": torch.randn(num_envs, int(env_cfg.numObservations), device=device),
-                      "critic": torch.randn(num_envs, num_states, device=device)}, batch_size=[num_envs], device=device)
-    alg = PPO.construct_algorithm(obs, SizedEnv(num_envs, int(env_cfg.numActions)), train_cfg, device)
+    shapes, num_actions = observation_groups([f"task={task}", *overrides], device)
+    groups = {name: (torch.randint(0, 256, (num_envs, *shape), dtype=dtype, device=device) if dtype == torch.uint8
+                     else torch.randn(num_envs, *shape, device=device))
+              for name, (shape, dtype) in shapes.items()}
+    obs = TensorDict(groups, batch_size=[num_envs], device=device)
+    alg = PPO.construct_algorithm(obs, SizedEnv(num_envs, num_actions), train_cfg, device)
     return alg, obs, train_cfg["num_steps_per_env"]
 
 
@@ -66,12 +85,15 @@ def main() -> None:
                         help="SyncFreePPO's train.algorithm.capture_update")
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--updates", type=int, default=20)
+    parser.add_argument("--profile", type=int, default=0, help="then profile this many updates: a kernel table")
+    parser.add_argument("--rows", type=int, default=25, help="kernels in the --profile table")
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides, e.g. train.actor.cnn_precision=float32")
     args = parser.parse_args()
     if not torch.cuda.is_available():
         raise SystemExit("ppo_update.py times the update on a CUDA GPU")
     device = "cuda:0"
     torch.manual_seed(0)
-    alg, obs, steps = build(args.task, args.num_envs, args.algorithm, args.capture, device)
+    alg, obs, steps = build(args.task, args.num_envs, args.algorithm, args.capture, device, args.overrides)
     gpu_ms, host_ms = [], []
     for i in range(args.warmup + args.updates):
         fill(alg, obs, steps)
@@ -85,6 +107,8 @@ def main() -> None:
         if i >= args.warmup:
             gpu_ms.append(start.elapsed_time(end))
             host_ms.append(1e3 * (time.perf_counter() - t0))
+    if args.profile:
+        profile_updates(alg, obs, steps, args.profile, args.rows)
     print(json.dumps({
         "task": args.task, "num_envs": args.num_envs, "samples_per_update": steps * args.num_envs,
         "algorithm": args.algorithm, "capture_update": getattr(alg, "capture_update", None),
@@ -93,6 +117,27 @@ def main() -> None:
         "host_ms_median": statistics.median(host_ms), "device": device_description(device),
         "versions": package_versions(), "date": time.strftime("%Y-%m-%d"),
     }))
+
+
+def profile_updates(alg, obs: TensorDict, steps: int, updates: int, rows: int) -> None:
+    """The GPU kernels of ``updates`` updates (each after a fresh rollout), per update, costliest first."""
+    from torch.profiler import ProfilerActivity, profile
+
+    totals: dict[str, list[float]] = {}
+    for _ in range(updates):
+        fill(alg, obs, steps)
+        torch.cuda.synchronize()
+        with profile(activities=[ProfilerActivity.CUDA]) as prof:
+            alg.update()
+            torch.cuda.synchronize()
+        for event in prof.key_averages():
+            if event.device_time_total > 0:
+                entry = totals.setdefault(event.key, [0.0, 0.0])
+                entry[0] += event.device_time_total / updates
+                entry[1] += event.count / updates
+    print(f"GPU kernels of one update ({sum(us for us, _ in totals.values()) / 1e3:.1f} ms in all):")
+    for name, (us, count) in sorted(totals.items(), key=lambda kv: -kv[1][0])[:rows]:
+        print(f"{us / 1e3:9.2f} ms {count:6.1f}x  {name[:110]}")
 
 
 if __name__ == "__main__":
