@@ -8,7 +8,8 @@ exported ONNX / TorchScript policies all take the task's raw 0-255 images.
 
 Train YAML: ``actor: {class_name: isaacgymenvs_mw.learning.models:ImageCNNModel, cnn_cfg: {...}, ...}``.
 
-Two options of the image model speed its CNNs up on a GPU, both off by default (docs/config.md):
+Two options of the image model speed its CNNs up on a GPU, both off unless a train YAML sets them (CartpoleCamera's
+recipe sets both; docs/config.md):
 
 * ``cnn_precision: bfloat16`` runs the convolutions under ``torch.autocast`` in bfloat16 (forward and backward; the
   MLP after the CNN stays float32). The pixels become bfloat16 directly (integers 0-255 are exact in bfloat16; the

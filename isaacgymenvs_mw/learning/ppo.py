@@ -577,9 +577,5 @@ class SyncFreePPO(PPO):
 
 def _same_observations(obs: TensorDict, groups: list[str], other: list[str]) -> bool:
     """Whether two observation groups give the same tensors (the same names, or names bound to one tensor)."""
-    if list(groups) == list(other):
-        return True
-    if len(groups) != len(other):
-        return False
-    return all(obs[a] is obs[b] or (obs[a].data_ptr() == obs[b].data_ptr() and obs[a].shape == obs[b].shape)
-               for a, b in zip(groups, other))
+    return len(groups) == len(other) and all(
+        obs[a].data_ptr() == obs[b].data_ptr() and obs[a].shape == obs[b].shape for a, b in zip(groups, other))
