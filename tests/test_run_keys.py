@@ -8,6 +8,8 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -83,6 +85,50 @@ def test_runs_dir_under_a_file_is_named_and_a_good_one_is_left_untouched(tmp_pat
     # a folder that can be made passes, and the check leaves nothing behind: the run makes it when it writes
     check_runs_dir(str(tmp_path / "new" / "deeper" / "runs"))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_runs_dir_a_run_beside_creates_during_the_check_passes_and_stays(tmp_path, monkeypatch):
+    # another run made the folder after this check looked: mkdir meets it, and it is not this check's to remove
+    beside = tmp_path / "shared_runs"
+    beside.mkdir()
+    real_exists = Path.exists
+    monkeypatch.setattr(Path, "exists", lambda self: False if self == beside else real_exists(self))
+    check_runs_dir(str(beside / "mine"))
+    assert beside.is_dir() and list(beside.iterdir()) == []
+
+
+def test_runs_dir_whose_folder_another_check_removed_is_checked_again(tmp_path, monkeypatch):
+    # the folder vanished under the write (another run's check removed its own): the check is made again
+    calls = []
+    real = tempfile.TemporaryFile
+
+    def vanishing(*args, **kwargs):
+        calls.append(kwargs["dir"])
+        if len(calls) == 1:
+            raise FileNotFoundError(2, "No such file or directory")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", vanishing)
+    check_runs_dir(str(tmp_path / "runs"))
+    assert len(calls) == 2 and list(tmp_path.iterdir()) == []
+
+
+def test_runs_dir_checked_by_runs_side_by_side_passes_in_each(tmp_path):
+    # eight runs started at once on one new folder tree (a round of seeds, one per GPU) all pass their check
+    import multiprocessing
+    for round_ in range(5):
+        target = str(tmp_path / f"r{round_}" / "runs" / "seed")
+        with multiprocessing.get_context("fork").Pool(8) as pool:
+            errors = pool.map(_check_or_error, [target] * 8)
+        assert errors == [None] * 8
+
+
+def _check_or_error(runs_dir: str) -> str | None:
+    try:
+        check_runs_dir(runs_dir)
+    except ValueError as err:
+        return str(err)
+    return None
 
 
 @pytest.mark.parametrize("signum, sigint_at_start, repeats", [(signal.SIGTERM, signal.SIG_DFL, 1),
