@@ -18,10 +18,9 @@ set -uo pipefail
 out=${1:-/tmp/hands_seed2_stack}
 here=$(cd "$(dirname "$0")/.." && pwd)
 rm -f "$out/done"
-form="+train.algorithm.kl_schedule=per_epoch +train.algorithm.kl_form=rl_games +train.algorithm.grad_clip_scope=global"
-form="$form +train.algorithm.obs_normalization_clip=5.0 +train.algorithm.learning_rate_min=1e-6"
-form="$form +train.algorithm.share_trunk=True +train.algorithm.obs_normalization_form=rl_games"
-form="$form train.actor.distribution_cfg.std_type=log"
+# shellcheck source=rl_games_form.sh
+. "$here/rounds/rl_games_form.sh"
+form=$RL_GAMES_FORM
 (
   bash "$here/gpu_train_eval.sh" "$out" "${HAND_SECONDS:-900}" \
     "shadow2 0 ShadowHand 2 num_envs=16384" \
