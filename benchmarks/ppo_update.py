@@ -2,8 +2,8 @@
 
 The rollout storage is filled with synthetic observations and rewards of the task's sizes (each observation group's
 and the actions', which a 2-env build of the task reports; num_steps_per_env x num_envs samples), then `--updates`
-updates are timed one by one between CUDA events after `--warmup` untimed ones. Compares algorithm classes on identical
-work:
+updates are timed one by one between CUDA events after `--warmup` untimed ones (``--device cpu``: by the host clock,
+single-threaded unless ``--threads``). Compares algorithm classes on identical work:
 
   python benchmarks/ppo_update.py --task Go1 --num_envs 4096 --algorithm SyncFreePPO --capture auto
   python benchmarks/ppo_update.py --task Go1 --num_envs 4096 --algorithm PPO
@@ -42,14 +42,16 @@ def observation_groups(overrides: list[str], device: str) -> tuple[dict[str, tup
     cfg = compose_config([*overrides, "num_envs=2", f"sim_device={device}", f"rl_device={device}", "headless=True"])
     task = build_task(cfg)
     obs = task.reset()
-    sources = {"policy": obs["obs"], "critic": obs.get("states", obs["obs"])}
+    sources = {"policy": obs["obs"]}
+    if "states" in obs:  # without privileged states the critic group is the policy's tensor (see build)
+        sources["critic"] = obs["states"]
     if "camera" in obs:
         sources["camera"] = obs["camera"]
     return {name: (tuple(t.shape[1:]), t.dtype) for name, t in sources.items()}, task.num_actions
 
 
 def build(task: str, num_envs: int, algorithm: str, capture: str, device: str, overrides: list[str]):
-    from rsl_rl.algorithms import PPO
+    from isaacgymenvs_mw.learning.ppo import SyncFreePPO
 
     cfg = compose_config([f"task={task}", *overrides, f"num_envs={num_envs}"])
     train_cfg = rsl_rl_config(to_dict(cfg.train))
@@ -61,8 +63,11 @@ def build(task: str, num_envs: int, algorithm: str, capture: str, device: str, o
     groups = {name: (torch.randint(0, 256, (num_envs, *shape), dtype=dtype, device=device) if dtype == torch.uint8
                      else torch.randn(num_envs, *shape, device=device))
               for name, (shape, dtype) in shapes.items()}
+    groups.setdefault("critic", groups["policy"])  # one tensor, as the env hands it (a shared trunk requires it)
     obs = TensorDict(groups, batch_size=[num_envs], device=device)
-    alg = PPO.construct_algorithm(obs, SizedEnv(num_envs, num_actions), train_cfg, device)
+    # SyncFreePPO's construction builds either class (the one class_name names) and reads algorithm.share_trunk,
+    # which rsl-rl-lib's own construction would hand to the class as an unknown argument
+    alg = SyncFreePPO.construct_algorithm(obs, SizedEnv(num_envs, num_actions), train_cfg, device)
     return alg, obs, train_cfg["num_steps_per_env"]
 
 
@@ -87,34 +92,48 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=20)
     parser.add_argument("--profile", type=int, default=0, help="then profile this many updates: a kernel table")
     parser.add_argument("--rows", type=int, default=25, help="kernels in the --profile table")
+    parser.add_argument("--device", default="cuda:0", help="cuda:N, or cpu (small num_envs: a CPU update is slow)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads with --device cpu")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides, e.g. train.actor.cnn_precision=float32")
     args = parser.parse_args()
-    if not torch.cuda.is_available():
-        raise SystemExit("ppo_update.py times the update on a CUDA GPU")
-    device = "cuda:0"
+    device = args.device
+    on_cuda = torch.device(device).type == "cuda"
+    if on_cuda and not torch.cuda.is_available():
+        raise SystemExit(f"--device {device}: no CUDA GPU here; give --device cpu")
+    if not on_cuda:
+        if args.profile:
+            raise SystemExit("--profile lists GPU kernels: give a CUDA --device")
+        torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     alg, obs, steps = build(args.task, args.num_envs, args.algorithm, args.capture, device, args.overrides)
-    gpu_ms, host_ms = [], []
+    update_ms, host_ms, rollout_ms = [], [], []
     for i in range(args.warmup + args.updates):
-        fill(alg, obs, steps)
-        torch.cuda.synchronize()
-        start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
         t0 = time.perf_counter()
-        start.record()
-        alg.update()
-        end.record()
-        end.synchronize()
+        fill(alg, obs, steps)
+        if on_cuda:
+            torch.cuda.synchronize()
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+        t1 = time.perf_counter()
+        alg.update()  # ends with a host read of its losses, so on the CPU the clock holds the whole update
+        if on_cuda:
+            end.record()
+            end.synchronize()
+        t2 = time.perf_counter()
         if i >= args.warmup:
-            gpu_ms.append(start.elapsed_time(end))
-            host_ms.append(1e3 * (time.perf_counter() - t0))
+            update_ms.append(start.elapsed_time(end) if on_cuda else 1e3 * (t2 - t1))
+            host_ms.append(1e3 * (t2 - t1))
+            rollout_ms.append(1e3 * (t1 - t0))
     if args.profile:
         profile_updates(alg, obs, steps, args.profile, args.rows)
     print(json.dumps({
         "task": args.task, "num_envs": args.num_envs, "samples_per_update": steps * args.num_envs,
         "algorithm": args.algorithm, "capture_update": getattr(alg, "capture_update", None),
         "mini_batch_steps": alg.num_learning_epochs * alg.num_mini_batches,
-        "update_ms_median": statistics.median(gpu_ms), "update_ms_min": min(gpu_ms),
-        "host_ms_median": statistics.median(host_ms), "device": device_description(device),
+        "update_ms_median": statistics.median(update_ms), "update_ms_min": min(update_ms),
+        "host_ms_median": statistics.median(host_ms),
+        "rollout_ms_median": statistics.median(rollout_ms),  # act at every step (no simulator), then GAE
+        "device": device_description(device),
         "versions": package_versions(), "date": time.strftime("%Y-%m-%d"),
     }))
 

@@ -193,3 +193,141 @@ def test_the_value_head_sits_on_the_last_hidden_layer():
     alg = build_shared()
     assert alg.critic.value_head.in_features == alg.actor.mlp[-1].in_features == 16
     assert alg.actor.mlp[-1].out_features == ACTIONS
+
+
+def count_trunk_passes(alg) -> list[int]:
+    """A counter of the trunk's passes: calls of its first layer."""
+    passes = [0]
+    alg.actor.mlp[0].register_forward_hook(lambda *_: passes.__setitem__(0, passes[0] + 1))
+    return passes
+
+
+def test_one_trunk_pass_gives_the_two_pass_losses_and_gradients():
+    """A mini-batch's forward as PPO runs it (the policy, then the value on the same batch; one pass of the trunk)
+    against the same losses written out by hand with the trunk computed twice, once per head, from copies of the
+    weights: the same value, log-probabilities and losses, and the same gradient on every parameter."""
+    alg = build_shared()
+    alg.actor.update_normalization(TensorDict({"policy": torch.randn(64, OBS) * 2.0 + 0.5}, batch_size=[64]))
+    data = torch.Generator().manual_seed(4)
+    x, actions = torch.randn(20, OBS, generator=data), torch.randn(20, ACTIONS, generator=data)
+    advantages, returns = torch.randn(20, generator=data), torch.randn(20, 1, generator=data)
+    old_log_prob = torch.randn(20, generator=data) * 0.1 - 4.0
+    obs = TensorDict({"policy": x}, batch_size=[20])
+    passes = count_trunk_passes(alg)
+
+    alg.actor(obs, stochastic_output=True)
+    log_prob = alg.actor.get_output_log_prob(actions)
+    values = alg.critic(obs)
+    assert passes[0] == 1
+    ratio = torch.exp(log_prob - old_log_prob)
+    surrogate = torch.max(-advantages * ratio, -advantages * ratio.clamp(0.8, 1.2)).mean()
+    value_loss = (returns - values).pow(2).mean()
+    entropy = alg.actor.output_entropy.mean()
+    (surrogate + value_loss - 0.01 * entropy).backward()
+    named = dict([*alg.actor.named_parameters(), *alg.critic.named_parameters()])
+
+    w = {name: p.detach().clone().requires_grad_() for name, p in named.items()}
+    norm = alg.actor.obs_normalizer
+
+    def trunk_by_hand(inputs: torch.Tensor) -> torch.Tensor:
+        h = (inputs - norm._mean) / (norm._std + norm.eps)
+        for i in (0, 2):
+            h = F.elu(h @ w[f"mlp.{i}.weight"].T + w[f"mlp.{i}.bias"])
+        return h
+
+    mean = trunk_by_hand(x) @ w["mlp.4.weight"].T + w["mlp.4.bias"]  # first pass: the policy's
+    value = trunk_by_hand(x) @ w["value_head.weight"].T + w["value_head.bias"]  # second pass: the value's
+    std = w["distribution.std_param"]
+    log_prob_ref = (-0.5 * ((actions - mean) / std).square() - std.log() - 0.5 * math.log(2 * math.pi)).sum(-1)
+    ratio_ref = torch.exp(log_prob_ref - old_log_prob)
+    surrogate_ref = torch.max(-advantages * ratio_ref, -advantages * ratio_ref.clamp(0.8, 1.2)).mean()
+    value_loss_ref = (returns - value).pow(2).mean()
+    entropy_ref = (0.5 + 0.5 * math.log(2 * math.pi) + std.log()).sum()
+    (surrogate_ref + value_loss_ref - 0.01 * entropy_ref).backward()
+
+    torch.testing.assert_close(values, value)
+    torch.testing.assert_close(log_prob, log_prob_ref)
+    torch.testing.assert_close(surrogate, surrogate_ref)
+    torch.testing.assert_close(value_loss, value_loss_ref)
+    for name, param in named.items():
+        torch.testing.assert_close(param.grad, w[name].grad, msg=name)
+    assert named["mlp.0.weight"].grad.abs().sum() > 0 and named["value_head.weight"].grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize(("device", "capture"), DEVICE_MODES)
+def test_updates_with_one_trunk_pass_match_two_passes(device, capture):
+    """SyncFreePPO's rollouts and updates against the same learner whose value head always runs the trunk again (the
+    two-pass form): same losses, same weights; the trunk runs once per rollout step, once for the bootstrap value and
+    once per mini-batch instead of twice (counted where the update is not a replayed graph)."""
+    two_pass, one_pass = (build_shared(device=device, capture_update=capture) for _ in range(2))
+    two_pass.actor.take_features = lambda obs: None
+    counts = count_trunk_passes(two_pass), count_trunk_passes(one_pass)
+    two_history, one_history = train(two_pass, 3, data_seed=6), train(one_pass, 3, data_seed=6)
+    for two, one in zip(two_history, one_history, strict=True):
+        for key in ("value", "surrogate", "entropy", "lr"):
+            assert one[key] == pytest.approx(two[key], rel=1e-5, abs=1e-7), key
+    for two, one in zip(parameters(two_pass), parameters(one_pass), strict=True):
+        torch.testing.assert_close(one, two, rtol=1e-5, atol=1e-7)
+    mini_batches = one_pass.num_learning_epochs * one_pass.num_mini_batches
+    if one_pass.capture_update:
+        return
+    assert counts[1][0] == 3 * (NUM_STEPS + 1 + mini_batches)
+    assert counts[0][0] == 3 * (2 * NUM_STEPS + 1 + 2 * mini_batches)
+
+
+def test_the_value_never_takes_features_of_another_observation():
+    """The value head takes the policy's features only for the very observation object that the policy's last
+    forward read, unchanged since, once, and in the same grad mode; otherwise it runs the trunk on what it is given."""
+    alg = build_shared()
+    alg.actor.update_normalization(TensorDict({"policy": torch.randn(64, OBS) * 2.0 + 0.5}, batch_size=[64]))
+    passes = count_trunk_passes(alg)
+    data = torch.Generator().manual_seed(8)
+
+    def fresh() -> TensorDict:
+        return TensorDict({"policy": torch.randn(10, OBS, generator=data)}, batch_size=[10])
+
+    def expected(obs: TensorDict) -> torch.Tensor:
+        return by_hand(alg, obs["policy"])[1]
+
+    def value_after_policy(policy_obs: TensorDict, change=None) -> tuple[torch.Tensor, TensorDict, int]:
+        """The value asked just after the policy's forward on `policy_obs`, of `change(policy_obs)` if given; the
+        observation it was asked for; how many trunk passes the two calls took."""
+        before = passes[0]
+        alg.actor(policy_obs)
+        value_obs = change(policy_obs) if change else policy_obs
+        return alg.critic(value_obs), value_obs, passes[0] - before
+
+    with torch.no_grad():
+        value, same, used = value_after_policy(fresh())
+        torch.testing.assert_close(value, expected(same))
+        assert used == 1  # the one case that reuses: the same object, unchanged
+        before = passes[0]
+        torch.testing.assert_close(alg.critic(same), expected(same))  # asked again: the features were taken already
+        assert passes[0] - before == 1
+
+        other = fresh()
+        changes = {"another observation": lambda _: other,
+                   "another object with equal values": lambda o: o.clone(),
+                   "the group's tensor replaced": lambda o: o.set("policy", other["policy"].clone()),
+                   "the group's tensor written in place": lambda o: o.apply_(lambda t: t.mul_(-2.0))}
+        for case, change in changes.items():
+            value, asked, used = value_after_policy(fresh(), change)
+            assert used == 2, case
+            torch.testing.assert_close(value, expected(asked), msg=case)
+
+    # the policy's forward without gradients, the value with: the value's loss must reach the trunk
+    obs = fresh()
+    with torch.no_grad():
+        alg.actor(obs)
+    alg.critic(obs).sum().backward()
+    assert alg.actor.mlp[0].weight.grad.abs().sum() > 0
+
+    # the rollout's loop under inference mode: a step's value is the step's own, the bootstrap value runs the trunk
+    with torch.inference_mode():
+        step = fresh()
+        before = passes[0]
+        alg.actor(step)
+        torch.testing.assert_close(alg.critic(step), expected(step))
+        step["policy"].copy_(torch.randn(10, OBS, generator=data))  # the env writes the next observation in place
+        torch.testing.assert_close(alg.critic(step), expected(step))
+        assert passes[0] - before == 2

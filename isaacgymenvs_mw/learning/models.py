@@ -1,5 +1,5 @@
-"""Policy and value models beside rsl-rl-lib's: image observations fed as uint8 (``ImageCNNModel``), and the value head
-of an actor-critic whose hidden layers the policy and the value share (``SharedTrunkCritic``).
+"""Policy and value models beside rsl-rl-lib's: image observations fed as uint8 (``ImageCNNModel``), and an actor-critic
+whose hidden layers the policy and the value share (``SharedTrunkActor``, ``SharedTrunkCritic``).
 
 Images: a task's image group ("camera") holds uint8 pixels so that rollout storage keeps one byte per pixel and channel
 (float32 would take four). rsl-rl-lib's CNNs need floats, so each image group's CNN here first scales its input to
@@ -99,16 +99,84 @@ class _ExportedImageEncoder(nn.Module):
         return self.cnn(x.float() * (1.0 / 255.0))
 
 
+class SharedTrunkActor(MLPModel):
+    """The policy of rl_games' shared actor-critic: rsl-rl-lib's ``MLPModel``, the same modules and outputs, computed
+    as its trunk (the normaliser and every layer of its MLP but the last) then its last layer (the mean head).
+
+    Its forward keeps the trunk's features for the value head (``SharedTrunkCritic``), which takes them when it is
+    called next on the very same observation, so that PPO's pairs of calls (the rollout's act: actions then values;
+    each mini-batch: the policy then the value) run the trunk once. The handover is host-side bookkeeping only (object
+    identities), so a captured update records one trunk pass and no host read. Built in place of ``MLPModel`` by
+    ``SyncFreePPO.construct_algorithm`` with ``algorithm.share_trunk``; checkpoints and exports are ``MLPModel``'s.
+    """
+
+    _handover: _TrunkFeatures | None = None  # the last forward's features until the value head takes them
+
+    def forward(self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state=None,
+                stochastic_output: bool = False) -> torch.Tensor:
+        obs = unpad_trajectories(obs, masks) if masks is not None else obs
+        features = self.trunk(obs)
+        self._handover = _TrunkFeatures(obs, [obs[group] for group in self.obs_groups], features)
+        mlp_output = self.mlp[-1](features)
+        if self.distribution is None:
+            return mlp_output
+        if stochastic_output:
+            self.distribution.update(mlp_output)
+            return self.distribution.sample()
+        return self.distribution.deterministic_output(mlp_output)
+
+    def trunk(self, obs: TensorDict) -> torch.Tensor:
+        """The trunk's features: the normalised input through every layer of the MLP but the last."""
+        features = self.get_latent(obs)
+        for layer in list(self.mlp)[:-1]:
+            features = layer(features)
+        return features
+
+    def take_features(self, obs: TensorDict) -> torch.Tensor | None:
+        """The features of the last forward if it read ``obs`` itself, else None; each forward's are handed over once.
+
+        Once: a later call on the same object (the rollout's next observation written in place, or a second value
+        of one batch) gets None and runs the trunk again. ``_TrunkFeatures.read`` says what else must match."""
+        held, self._handover = self._handover, None
+        return held.features if held is not None and held.read(obs, self.obs_groups) else None
+
+
+class _TrunkFeatures:
+    """A forward's trunk features and what they were computed from: the observation object, the group tensors it
+    held, their in-place write counters (tensors made under ``torch.inference_mode`` keep none) and the grad mode."""
+
+    def __init__(self, obs: TensorDict, inputs: list[torch.Tensor], features: torch.Tensor) -> None:
+        self.obs, self.inputs, self.features = obs, inputs, features
+        self.versions = _versions(inputs)
+        self.grad = torch.is_grad_enabled()
+
+    def read(self, obs: TensorDict, groups: list[str]) -> bool:
+        """Whether these features are the trunk's of ``obs`` as it is now, for a caller in the current grad mode (a
+        value whose loss needs the trunk's gradient must not take features computed without one)."""
+        if obs is not self.obs or self.grad != torch.is_grad_enabled():
+            return False
+        inputs = [obs[group] for group in groups]
+        return all(a is b for a, b in zip(inputs, self.inputs)) and _versions(inputs) == self.versions
+
+
+def _versions(tensors: list[torch.Tensor]) -> list[int | None]:
+    return [None if t.is_inference() else t._version for t in tensors]
+
+
 class SharedTrunkCritic(nn.Module):
     """The value of rl_games' shared actor-critic (``separate: False``): one MLP trunk, a linear head for the action
     means and a linear head for the value, the std a free parameter, one observation normaliser.
 
-    Built on the actor (an ``MLPModel`` with a state-independent Gaussian): its normaliser and its MLP's hidden layers
-    are the trunk, its MLP's last linear layer the mean head; this module adds the value head. The actor is held, not
-    registered, so the trunk's parameters and statistics stay the actor's alone: the optimiser sees each once, the
-    checkpoint's ``actor_state_dict`` holds the whole policy (test mode and the exporter use it unchanged) and
-    ``critic_state_dict`` the value head. The trunk runs once in the policy's forward and once here; the gradient
-    is the same as rl_games' single pass (the sum of both losses' paths through the trunk).
+    Built on the actor (a ``SharedTrunkActor``, rsl-rl-lib's ``MLPModel`` with a state-independent Gaussian): its
+    normaliser and its MLP's hidden layers are the trunk, its MLP's last linear layer the mean head; this module adds
+    the value head. The actor is held, not registered, so the trunk's parameters and statistics stay the actor's
+    alone: the optimiser sees each once, the checkpoint's ``actor_state_dict`` holds the whole policy (test mode and
+    the exporter use it unchanged) and ``critic_state_dict`` the value head.
+
+    The trunk runs once per observation: called on the observation that the actor's forward has just read (the
+    rollout's act, each PPO mini-batch), the value head takes that forward's features (``take_features``), so the
+    loss's gradient reaches the trunk through both heads in one backward pass, as in rl_games' single network; called
+    alone (the bootstrap value of ``compute_returns``), it runs the actor's trunk itself.
 
     Train YAML: ``algorithm.share_trunk: True`` (``SyncFreePPO.construct_algorithm`` builds it; the ``critic``
     section is then not read).
@@ -118,7 +186,7 @@ class SharedTrunkCritic(nn.Module):
 
     def __init__(self, actor: MLPModel) -> None:
         super().__init__()
-        head = actor.mlp[-1] if type(actor) is MLPModel else None
+        head = actor.mlp[-1] if isinstance(actor, SharedTrunkActor) else None
         if not isinstance(head, nn.Linear):
             raise ConfigError("train.algorithm.share_trunk=True needs train.actor.class_name=MLPModel with a "
                               "state-independent Gaussian (train.actor.distribution_cfg), got "
@@ -126,18 +194,11 @@ class SharedTrunkCritic(nn.Module):
         object.__setattr__(self, "_actor", actor)  # a plain attribute: not a submodule, its parameters not ours
         self.value_head = nn.Linear(head.in_features, 1)
 
-    def trunk(self, obs: TensorDict) -> torch.Tensor:
-        """The trunk's features: the actor's normalised input through every layer of its MLP but the last."""
-        actor = self._actor
-        features = actor.get_latent(obs)
-        for layer in list(actor.mlp)[:-1]:
-            features = layer(features)
-        return features
-
     def forward(self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state=None) -> torch.Tensor:
         if masks is not None:  # padded for a recurrent learner's batches; a shared trunk is feed-forward
             obs = unpad_trajectories(obs, masks)
-        return self.value_head(self.trunk(obs))
+        features = self._actor.take_features(obs)
+        return self.value_head(self._actor.trunk(obs) if features is None else features)
 
     # What PPO asks of a critic; the observation statistics are the actor's, updated once, by the actor.
     def update_normalization(self, obs: TensorDict) -> None:

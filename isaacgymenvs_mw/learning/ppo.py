@@ -23,6 +23,7 @@ from itertools import chain
 
 import torch
 from rsl_rl.algorithms import PPO
+from rsl_rl.models import MLPModel
 from rsl_rl.modules import EmpiricalNormalization
 from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
@@ -30,7 +31,7 @@ from rsl_rl.utils import resolve_class, resolve_obs_groups
 from tensordict import TensorDict
 
 # The normalisers and loss terms have modules of their own; their names stay importable from here too.
-from isaacgymenvs_mw.learning.models import SharedTrunkCritic
+from isaacgymenvs_mw.learning.models import SharedTrunkActor, SharedTrunkCritic
 from isaacgymenvs_mw.learning.normalizers import (VALUE_NORMALIZER_KEY, ClippedEmpiricalNormalization,
                                                   ValueNormalizer, _RealUnitCritic)
 from isaacgymenvs_mw.learning.ppo_losses import bounds_loss, rl_games_kl
@@ -184,8 +185,11 @@ class SyncFreePPO(PPO):
                     f"task.env.asymmetric_observations=True); give train.runner.obs_groups.critic="
                     f"{list(groups['actor'])} or train.algorithm.share_trunk=False")
             # rsl-rl-lib builds the actor, then the critic from the class its section names: the actor is kept on
-            # the way so that the critic can be its value head.
+            # the way so that the critic can be its value head. An MLPModel is built as the same network that hands
+            # its trunk's features to the value head (any other class is refused by SharedTrunkCritic).
             actor_class, actor_cfg = resolve_class(dict(cfg["actor"]))
+            if actor_class is MLPModel:
+                actor_class = SharedTrunkActor
             models: list = []
 
             def actor(*args, **kwargs):
