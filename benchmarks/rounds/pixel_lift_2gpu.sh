@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# FrankaCubeLiftDepth and FrankaCubeLiftRGB (issue 58, "then the pixel lift tasks with what the hands taught") on a
+# 2-GPU host: 0 % lifted after 720 s with their recipe (2026-11-26, 96 M env steps at 133 k/s, about half the steps
+# the state-based FrankaCubeLift takes to learn). Here: 1200 s each, the hands' rl_games steering (their actor is a
+# CNN and their critic reads the cube's pose, so no shared trunk), and CartpoleCamera's faster CNN (bfloat16,
+# channels-last: +38 % training speed there).
+#   GPU 0  FrankaCubeLiftDepth seed 1, PIXEL_SECONDS (default 1200)
+#   GPU 1  FrankaCubeLiftRGB seed 1, PIXEL_SECONDS
+# Test mode: seed 11, best and last checkpoints, 1024 envs.
+#
+#   call 1: setsid nohup bash benchmarks/rounds/pixel_lift_2gpu.sh /tmp/px > /tmp/px.log 2>&1 &
+#   then:   while [ ! -f /tmp/px/done ]; do sleep 20; done; cat /tmp/px/results.txt   (in calls <= 540 s, back to back)
+set -uo pipefail
+out=${1:-/tmp/pixel_lift_2gpu}
+here=$(cd "$(dirname "$0")/.." && pwd)
+rm -f "$out/done"
+# shellcheck source=rl_games_form.sh
+. "$here/rounds/rl_games_form.sh"
+form="$RL_GAMES_STEERING train.actor.cnn_precision=bfloat16 train.actor.cnn_channels_last=True"
+bash "$here/gpu_train_eval.sh" "$out" "${PIXEL_SECONDS:-1200}" \
+  "depth1 0 FrankaCubeLiftDepth 1 $form" \
+  "rgb1 1 FrankaCubeLiftRGB 1 $form"
+python3 "$here/rounds/round_results.py" "$out" depth1 rgb1 | tee "$out/results.txt"
+touch "$out/done"
