@@ -11,14 +11,10 @@
 #   call 1: setsid nohup bash benchmarks/rounds/pixel_lift_2gpu.sh /tmp/px > /tmp/px.log 2>&1 &
 #   then:   while [ ! -f /tmp/px/done ]; do sleep 20; done; cat /tmp/px/results.txt   (in calls <= 540 s, back to back)
 set -uo pipefail
-out=${1:-/tmp/pixel_lift_2gpu}
-here=$(cd "$(dirname "$0")/.." && pwd)
-rm -f "$out/done"
+rounds=$(cd "$(dirname "$0")" && pwd)
 # shellcheck source=rl_games_form.sh
-. "$here/rounds/rl_games_form.sh"
+. "$rounds/rl_games_form.sh"
 form="$RL_GAMES_STEERING train.actor.cnn_precision=bfloat16 train.actor.cnn_channels_last=True"
-bash "$here/gpu_train_eval.sh" "$out" "${PIXEL_SECONDS:-1200}" \
+bash "$rounds/round.sh" "${1:-/tmp/pixel_lift_2gpu}" "${PIXEL_SECONDS:-1200}" \
   "depth1 0 FrankaCubeLiftDepth 1 $form" \
   "rgb1 1 FrankaCubeLiftRGB 1 $form"
-python3 "$here/rounds/round_results.py" "$out" depth1 rgb1 | tee "$out/results.txt"
-touch "$out/done"

@@ -12,14 +12,10 @@
 #   call 1: setsid nohup bash benchmarks/rounds/stack_staged_2gpu.sh /tmp/st > /tmp/st.log 2>&1 &
 #   then:   while [ ! -f /tmp/st/done ]; do sleep 20; done; cat /tmp/st/results.txt   (in calls <= 540 s, back to back)
 set -uo pipefail
-out=${1:-/tmp/stack_staged_2gpu}
-here=$(cd "$(dirname "$0")/.." && pwd)
-rm -f "$out/done"
+rounds=$(cd "$(dirname "$0")" && pwd)
 # shellcheck source=rl_games_form.sh
-. "$here/rounds/rl_games_form.sh"
+. "$rounds/rl_games_form.sh"
 form="$RL_GAMES_FORM +train.algorithm.normalize_value=True"
-bash "$here/gpu_train_eval.sh" "$out" "${STACK_SECONDS:-1200}" \
+bash "$rounds/round.sh" "${1:-/tmp/stack_staged_2gpu}" "${STACK_SECONDS:-1200}" \
   "stack1 0 FrankaCubeStack 1 $form" \
   "stack2 1 FrankaCubeStack 2 $form"
-python3 "$here/rounds/round_results.py" "$out" stack1 stack2 | tee "$out/results.txt"
-touch "$out/done"
