@@ -15,13 +15,9 @@
 set -uo pipefail
 out=${1:-/tmp/hands_ablation}
 seconds=${TRAIN_SECONDS:-900}
-here=$(cd "$(dirname "$0")/.." && pwd)
-rm -f "$out/done"
-bash "$here/gpu_train_eval.sh" "$out" "$seconds" \
+# One line per variant: consecutive successes with the best and the last checkpoint, training speed.
+bash "$(dirname "$0")/round.sh" "$out" "$seconds" \
   "shipped 0 ShadowHand 1 num_envs=16384" \
   "batch 1 ShadowHand 1 num_envs=8192 train.runner.num_steps_per_env=16" \
   "trunk 2 ShadowHand 1 num_envs=16384 train.algorithm.share_trunk=False" \
   "obsform 3 ShadowHand 1 num_envs=16384 train.algorithm.obs_normalization_form=rsl_rl"
-# One line per variant: consecutive successes with the best and the last checkpoint, training speed.
-python3 "$here/rounds/round_results.py" "$out" shipped batch trunk obsform | tee "$out/results.txt"
-touch "$out/done"

@@ -12,13 +12,9 @@ set -uo pipefail
 out=${1:-/tmp/hands_rl_games_form}
 seed=${2:-1}
 seconds=${TRAIN_SECONDS:-900}
-here=$(cd "$(dirname "$0")/.." && pwd)
-rm -f "$out/done"
 form="num_envs=16384 train.runner.num_steps_per_env=8 train.algorithm.num_mini_batches=4"
 form="$form +train.algorithm.share_trunk=True train.runner.obs_groups.critic=[policy]"
 form="$form +train.algorithm.obs_normalization_form=rl_games"
-bash "$here/gpu_train_eval.sh" "$out" "$seconds" \
+bash "$(dirname "$0")/round.sh" "$out" "$seconds" \
   "shadow 0 ShadowHand $seed $form" \
   "allegro 1 AllegroHand $seed $form"
-python3 "$here/rounds/round_results.py" "$out" shadow allegro | tee "$out/results.txt"
-touch "$out/done"

@@ -7,17 +7,16 @@
 # observation is the critic's (env.asymmetric_observations False).
 #   GPU 0  FrankaCubeStack seed 1, STACK_SECONDS (default 1200)
 #   GPU 1  FrankaCubeStack seed 2, STACK_SECONDS
-# FIRST_GPU=2 moves the pair to GPUs 2 and 3: a 4-GPU host runs this round and the other 2-GPU round at once.
+# FIRST_GPU=2 moves the pair to GPUs 2 and 3 (rounds/round.sh): a 4-GPU host runs two such rounds at once.
 # Test mode: seed 11, best and last checkpoints, 1024 envs.
 #
 #   call 1: setsid nohup bash benchmarks/rounds/stack_staged_2gpu.sh /tmp/st > /tmp/st.log 2>&1 &
 #   then:   while [ ! -f /tmp/st/done ]; do sleep 20; done; cat /tmp/st/results.txt   (in calls <= 540 s, back to back)
 set -uo pipefail
 rounds=$(cd "$(dirname "$0")" && pwd)
-gpu=${FIRST_GPU:-0}
 # shellcheck source=rl_games_form.sh
 . "$rounds/rl_games_form.sh"
 form="$RL_GAMES_FORM +train.algorithm.normalize_value=True"
 bash "$rounds/round.sh" "${1:-/tmp/stack_staged_2gpu}" "${STACK_SECONDS:-1200}" \
-  "stack1 $gpu FrankaCubeStack 1 $form" \
-  "stack2 $((gpu + 1)) FrankaCubeStack 2 $form"
+  "stack1 0 FrankaCubeStack 1 $form" \
+  "stack2 1 FrankaCubeStack 2 $form"
