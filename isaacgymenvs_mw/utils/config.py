@@ -338,44 +338,25 @@ def checkpoint_path(cfg: DictConfig) -> Path | None:
     return path
 
 
-def check_runs_dir(runs_dir: str, attempts: int = 3) -> None:
+def check_runs_dir(runs_dir: str) -> None:
     """Fail naming ``runs_dir`` if a training run could not write there; leaves nothing behind.
 
-    Folders that do not exist yet are created for the check and removed again, and a file is written and deleted:
-    permissions alone do not tell (root passes every access check, yet cannot create folders in /proc). Runs started
-    side by side check the same new folders at once: one run's folder may appear, or vanish, during another's check,
-    so a folder that appears is taken as it is and a check whose folder vanished is made again.
+    Permissions alone do not tell (root passes every access check, yet cannot create folders in /proc), so the check
+    writes: a file in ``runs_dir`` if it exists, else a folder in the nearest folder above it that does, each under a
+    name of its own and removed at once. Nothing shared is created or removed, so runs started side by side on one new
+    folder tree (a round of seeds) cannot disturb each other's checks.
     """
     path = Path(runs_dir).expanduser().absolute()
-    for attempt in range(1, attempts + 1):
-        try:
-            _write_and_clean(path)
-            return
-        except OSError as err:
-            if isinstance(err, FileNotFoundError) and attempt < attempts:
-                continue  # another run removed the folders of its own check while this one wrote
-            raise ConfigError(f"runs_dir={runs_dir!r} cannot be written to ({err.strerror or err}): give a folder "
-                              "you can create and write in") from err
-
-
-def _write_and_clean(path: Path) -> None:
-    """Create ``path``'s missing folders, write a file in it, then remove what this call created."""
-    created = []
+    nearest = next(p for p in (path, *path.parents) if p.exists())
     try:
-        for folder in reversed([p for p in (path, *path.parents) if not p.exists()]):
-            try:
-                folder.mkdir()
-            except FileExistsError:
-                continue  # another run created it in the meantime: it is not ours to remove
-            created.append(folder)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    finally:
-        for folder in reversed(created):
-            try:
-                folder.rmdir()
-            except OSError:  # another run is writing in it now; that run's check or training removes or keeps it
-                break
+        if nearest == path:
+            with tempfile.TemporaryFile(dir=path):
+                pass
+        else:
+            os.rmdir(tempfile.mkdtemp(dir=nearest))
+    except OSError as err:
+        raise ConfigError(f"runs_dir={runs_dir!r} cannot be written to ({err.strerror or err}): give a folder "
+                          "you can create and write in") from err
 
 
 def to_dict(cfg: DictConfig) -> dict:
