@@ -263,11 +263,14 @@ def test_updates_with_one_trunk_pass_match_two_passes(device, capture):
     two_pass.actor.take_features = lambda obs: None
     counts = count_trunk_passes(two_pass), count_trunk_passes(one_pass)
     two_history, one_history = train(two_pass, 3, data_seed=6), train(one_pass, 3, data_seed=6)
+    # One trunk pass sums the two heads' gradients inside the trunk's backward, two passes sum them at the weights: the
+    # float sums differ in order, by up to 1.1e-5 relative after 3 updates on a 64-core host's CPU (2026-11-28). A
+    # handover that cuts the value loss off the trunk (features detached) fails it by far more than the 1e-4 allowed here.
     for two, one in zip(two_history, one_history, strict=True):
         for key in ("value", "surrogate", "entropy", "lr"):
-            assert one[key] == pytest.approx(two[key], rel=1e-5, abs=1e-7), key
+            assert one[key] == pytest.approx(two[key], rel=1e-4, abs=1e-6), key
     for two, one in zip(parameters(two_pass), parameters(one_pass), strict=True):
-        torch.testing.assert_close(one, two, rtol=1e-5, atol=1e-7)
+        torch.testing.assert_close(one, two, rtol=1e-4, atol=1e-6)
     mini_batches = one_pass.num_learning_epochs * one_pass.num_mini_batches
     if one_pass.capture_update:
         return
