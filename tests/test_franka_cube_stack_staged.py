@@ -24,8 +24,14 @@ TABLE_TOP = -0.1  # assets/mjcf/table.xml
 Q0 = np.array([0.0, 0.1963, 0.0, -2.6180, 0.0, 2.9416, 0.7854, 0.04, 0.04])  # IGE's arm pose, the gripper open
 
 
-def reference_staged(a, b, g, opening, v, w):
+SHIPPED_LEVELS = (0.0, 2.0, 3.0, 4.0, 6.0, 8.0)  # cfg/task/FrankaCubeStack.yaml, env.reward.stageLevels
+LIFT_HEAVY_LEVELS = (0.0, 1.0, 3.0, 4.5, 6.0, 9.0)  # another valid set: the lift pays more than the grasp
+
+
+def reference_staged(a, b, g, opening, v, w, levels=SHIPPED_LEVELS):
     """The staged reward of one env, as docs/config.md states it: (reward, stage name)."""
+    reach, grasp, carry, place_level, release, stacked = levels
+
     def norm(x):
         return math.sqrt(sum(c * c for c in x))
 
@@ -35,32 +41,33 @@ def reference_staged(a, b, g, opening, v, w):
     held = norm([a[i] - g[i] for i in range(3)]) < 0.03 and opening < 0.03
     on_b = off_xy < 0.02 and abs(rise_over_place) <= 0.01
     if on_b and opening >= 0.035 and norm(v) < 0.01 and norm(w) < 0.5:
-        return 1.0, "stacked"
+        return stacked / stacked, "stacked"
     if on_b:
         opened = min(max((opening - 0.025) / 0.015, 0.0), 1.0)
-        return (6.0 + (opened + 1.0 - math.tanh(10.0 * norm(v) + norm(w))) / 2.0) / 8.0, "release"
+        return (release + (opened + 1.0 - math.tanh(10.0 * norm(v) + norm(w))) / 2.0) / stacked, "release"
     if held and rise_over_place > 0.01 and off_xy < 0.02:
-        return (5.0 - math.tanh(5.0 * norm([place[i] - a[i] for i in range(3)]))) / 8.0, "place"
+        return (place_level + 1.0 - math.tanh(5.0 * norm([place[i] - a[i] for i in range(3)]))) / stacked, "place"
     if held and rise_over_place > 0.01:
         hover = [place[0], place[1], place[2] + 0.03]
-        return (4.0 - math.tanh(5.0 * norm([hover[i] - a[i] for i in range(3)]))) / 8.0, "carry"
+        return (carry + 1.0 - math.tanh(5.0 * norm([hover[i] - a[i] for i in range(3)]))) / stacked, "carry"
     if held:
         rest = TABLE_TOP + 0.025
         rise = (a[2] - rest) / (place[2] + 0.01 - rest)
-        return (2.0 + min(max(rise, 0.0), 1.0)) / 8.0, "grasp"
-    return (1.0 - math.tanh(5.0 * norm([g[i] - a[i] for i in range(3)]))) / 8.0, "reach"
+        return (grasp + min(max(rise, 0.0), 1.0)) / stacked, "grasp"
+    return (reach + 1.0 - math.tanh(5.0 * norm([g[i] - a[i] for i in range(3)]))) / stacked, "reach"
 
 
 STAGE_NAMES = ["reach", "grasp", "carry", "place", "release", "stacked"]
 
 
-def staged(a, b, g, opening, v, w):
+def staged(a, b, g, opening, v, w, levels=SHIPPED_LEVELS):
     t = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64)
-    reward, stage = staged_stack_reward(t(a), t(b), t(g), t(opening), t(v), t(w))
+    reward, stage = staged_stack_reward(t(a), t(b), t(g), t(opening), t(v), t(w), levels)
     return reward.numpy(), [STAGE_NAMES[i] for i in stage.tolist()]
 
 
-def test_staged_reward_equals_the_reference_formula_in_every_stage():
+@pytest.mark.parametrize("levels", [SHIPPED_LEVELS, LIFT_HEAVY_LEVELS])
+def test_staged_reward_equals_the_reference_formula_in_every_stage(levels):
     rng = np.random.default_rng(3)
     n, k = 1800, 300
     b = np.column_stack([0.45 + rng.uniform(-0.25, 0.25, n), rng.uniform(-0.25, 0.25, n), np.full(n, -0.065)])
@@ -75,8 +82,8 @@ def test_staged_reward_equals_the_reference_formula_in_every_stage():
     opening = rng.choice([0.0, 0.025, 0.03, 0.035, 0.04], n) + rng.uniform(-0.002, 0.002, n)
     v = rng.normal(0.0, 0.01, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))
     w = rng.normal(0.0, 0.4, (n, 3)) * rng.choice([0.1, 1.0], (n, 1))
-    reward, stage = staged(a, b, g, opening, v, w)
-    expected = [reference_staged(*row) for row in zip(a, b, g, opening, v, w)]
+    reward, stage = staged(a, b, g, opening, v, w, levels)
+    expected = [reference_staged(*row, levels) for row in zip(a, b, g, opening, v, w)]
     assert stage == [s for _, s in expected]
     np.testing.assert_allclose(reward, [r for r, _ in expected], atol=1e-12)
     counts = {name: stage.count(name) for name in STAGE_NAMES}
@@ -163,6 +170,40 @@ def test_an_unknown_reward_kind_is_one_line_naming_the_key_and_the_kinds():
                                           r"\['staged', 'isaacgymenvs'\]$"):
         make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
              overrides=["task.env.reward.kind=dense"])
+
+
+def test_stage_levels_of_the_yaml_set_what_each_stage_pays():
+    levels = "[" + ",".join(str(v) for v in LIFT_HEAVY_LEVELS) + "]"
+    env = make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
+               overrides=[f"task.env.reward.stageLevels={levels}"])
+    env.reset()
+    b = np.array([0.45, 0.0, TABLE_TOP + 0.035])
+    a = np.stack([b + [0, 0, 0.06], b + [0, 0.2, -0.01], b + [0.03, 0, 0.06]])  # on B; on the table; off B's top
+    place(env, a, np.tile(b, (3, 1)), np.tile(Q0, (3, 1)), lin_vel=[[0, 0, 0], [0, 0, 0], [0.05, 0, 0]])
+    env.compute_reward()
+    state = [t.tolist() for t in (env.cube_a.root_pos, env.cube_b.root_pos, env.arm.grasp_pos(), env.sim.dof_pos[:, 7],
+                                  env.cube_a.root_lin_vel, env.cube_a.root_ang_vel)]
+    expected = [reference_staged(*row, LIFT_HEAVY_LEVELS) for row in zip(*state)]
+    assert [s for _, s in expected] == ["stacked", "reach", "reach"]
+    np.testing.assert_allclose(env.rew_buf.tolist(), [r for r, _ in expected], atol=1e-6)
+    shipped = [reference_staged(*row)[0] for row in zip(*state)]
+    assert abs(env.rew_buf[1].item() - shipped[1]) > 1e-3  # reaching pays (0 + progress) / 9 here, not / 8
+
+
+@pytest.mark.parametrize("levels", ["[0,2,3,4,6]", "[0,2,2.5,4,6,8]", "[-1,2,3,4,6,8]", "[0,2,3,4,6,x]", "8"])
+def test_bad_stage_levels_are_one_line_naming_the_key(levels):
+    with pytest.raises(ConfigError, match=r"^task\.env\.reward\.stageLevels=.* is invalid: give 6 numbers, one per "
+                                          r"stage \['reach', .*'stacked'\], the first >= 0 and each at least 1 above "
+                                          r"the one before \(a stage pays its number \+ 0 \.\.\. 1\)$"):
+        make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+             overrides=[f"task.env.reward.stageLevels={levels}"])
+
+
+def test_a_yaml_without_stage_levels_is_one_line_naming_the_key():
+    with pytest.raises(ConfigError, match=r"^FrankaCubeStack: the task YAML's env section lacks "
+                                          r"\['reward\.stageLevels'\]$"):
+        make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+             overrides=["~task.env.reward.stageLevels"])
 
 
 def test_training_a_few_iterations_logs_the_success_rate_and_furthest_stage(tmp_path, run_args):

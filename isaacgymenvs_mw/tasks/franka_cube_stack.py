@@ -9,8 +9,8 @@ limit.
 Reward (``env.reward.kind``):
   * ``staged`` (default): one stage at a time, after ManiSkill's StackCube: reach A, grasp it, lift it clear of B,
     carry it over B, place it on B, release it (``staged_stack_reward``). Each stage pays within its own band, above
-    every earlier one; the most, once A is stacked: on B, the gripper open, A at rest. That ends the episode, and the
-    learner's bootstrap values it as that reward paid on every later step.
+    every earlier one (``env.reward.stageLevels``); the most, once A is stacked: on B, the gripper open, A at rest.
+    That ends the episode, and the learner's bootstrap values it as that reward paid on every later step.
   * ``isaacgymenvs``: IsaacGymEnvs' reward (``cube_stack_terms``: approach, lifted, aligned, and 16 on the step A
     is on B with the grasp point 4 cm away from it, which ends the episode), plus this project's grasp shaping
     (``graspRewardScale``, ``liftHeightRewardScale``; 0 gives IGE's reward exactly).
@@ -36,6 +36,7 @@ configuration to turn a wanted hand motion into joint motions).
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -80,14 +81,10 @@ CUBE_B_SIZE = 0.07  # edge length (m), assets/mjcf/cube_7cm.xml (A's, CUBE_A_SIZ
 MIN_CUBE_DISTANCE = 2.0 * (CUBE_A_SIZE + CUBE_B_SIZE) * math.sqrt(2.0) / 2.0
 CANDIDATES = 32  # draws for A per reset; the first far enough from B is taken (all 32 too close: p < 1e-13)
 
-# The staged reward's stages, in order, and the least each pays (its band: this ... this + 1; "stacked" pays its
-# level alone). ManiSkill's StackCube pays 0-2 reaching, 4-5 grasped, 6-7 on B and 8 once stacked; the grasp is split
-# here into lifting, carrying over B and placing, so that each motion has its own gradient. Divided by STACKED_LEVEL:
-# the reward per step is 0 ... 1.
+# The staged reward's stages, in order. Each pays its level (env.reward.stageLevels, the YAML's) plus its progress,
+# 0 ... 1 ("stacked" its level alone), all divided by stacked's level: the reward per step is 0 ... 1.
 STAGES = ("reach", "grasp", "carry", "place", "release", "stacked")
-STAGE_LEVELS = (0.0, 2.0, 3.0, 4.0, 6.0, 8.0)
 STACKED = STAGES.index("stacked")
-STACKED_LEVEL = STAGE_LEVELS[STACKED]
 STACK_XY_TOLERANCE = 0.02  # A's centre within this of B's in xy (m), IGE's tolerance
 STACK_Z_TOLERANCE = 0.01   # A's centre within this of its height resting on B (m); above it by more: A clears B
 HOVER = 0.03               # carry's aim: A's centre this far above its place on B (m)
@@ -110,8 +107,12 @@ class FrankaCubeStack(VecTask):
         self.reward_kind = one_of((env.get("reward") or {}).get("kind"), "env.reward.kind", REWARD_KINDS)
         ige_scales = tuple(REWARD_SCALE_KEYS.values()) if self.reward_kind == "isaacgymenvs" else ()
         missing = [k for k in _NUMBER_KEYS + ige_scales + ("startDofPos",) if k not in env]
+        if self.reward_kind == "staged" and "stageLevels" not in env["reward"]:
+            missing.append("reward.stageLevels")
         if missing:
             raise ConfigError(f"FrankaCubeStack: the task YAML's env section lacks {missing}")
+        if self.reward_kind == "staged":
+            self.stage_levels = stage_levels(env["reward"]["stageLevels"], "env.reward.stageLevels")
         self.control_type = control_type(env.get("controlType", "joint_pos"))
         if self.control_type in TORQUE_CONTROL:
             # The MJCF's arm servos become torque motors (same names and ctrl columns, force capped at 87 / 12 N m).
@@ -185,7 +186,7 @@ class FrankaCubeStack(VecTask):
         if self.reward_kind == "staged":
             reward, stage = staged_stack_reward(self.cube_a.root_pos, self.cube_b.root_pos, grasp,
                                                 self.sim.dof_pos[:, 7], self.cube_a.root_lin_vel,
-                                                self.cube_a.root_ang_vel)
+                                                self.cube_a.root_ang_vel, self.stage_levels)
             self.terms = {"staged": reward, "stacked": stage == STACKED}
             torch.maximum(self.furthest_stage, stage.float(), out=self.furthest_stage)
             return
@@ -276,6 +277,21 @@ class FrankaCubeStack(VecTask):
                              asset="cubeB", refresh=True)
 
 
+def stage_levels(value: object, key: str) -> tuple[float, ...]:
+    """``env.reward.stageLevels``, checked: one number per stage (STAGES), the first >= 0 and each at least 1 above the
+    one before, so that every stage, paying its level + 0 ... 1, pays more than all earlier ones."""
+    numbers = list(value) if isinstance(value, (list, tuple)) else None
+    ok = numbers is not None and len(numbers) == len(STAGES) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in numbers)
+    if ok:
+        ok = numbers[0] >= 0 and all(b >= a + 1 for a, b in itertools.pairwise(numbers))
+    if not ok:
+        shown = list(numbers) if numbers is not None else value
+        raise ConfigError(f"{key}={shown!r} is invalid: give {len(STAGES)} numbers, one per stage {list(STAGES)}, "
+                          "the first >= 0 and each at least 1 above the one before (a stage pays its number + 0 ... 1)")
+    return tuple(float(v) for v in numbers)
+
+
 def control_type(value: object) -> str:
     """``env.controlType``, checked: one of CONTROL_TYPES."""
     return one_of(value, "env.controlType", CONTROL_TYPES)
@@ -321,14 +337,14 @@ def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Te
 
 def staged_stack_reward(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Tensor,
                         finger_opening: torch.Tensor, lin_vel_a: torch.Tensor, ang_vel_a: torch.Tensor,
-                        table_top: float = TABLE_TOP) -> tuple[torch.Tensor, torch.Tensor]:
+                        levels: tuple[float, ...], table_top: float = TABLE_TOP) -> tuple[torch.Tensor, torch.Tensor]:
     """The staged reward (``env.reward.kind: staged``): (reward (N,) in 0 ... 1, stage (N,) long, an index of STAGES).
 
     Inputs: positions (N, 3) of cube A, cube B and the grasp point, each finger's opening (N,; m) and cube A's
     linear and angular velocity (N, 3; m/s, rad/s). A's place is its centre resting on B, (A + B) / 2 above B's
     centre; A is clear of B when its centre is more than STACK_Z_TOLERANCE above that height (its bottom above B's
     top), and over B when also within STACK_XY_TOLERANCE of B in xy. The stage is the furthest that holds; it pays
-    its STAGE_LEVELS value plus its progress (0 ... 1), all / STACKED_LEVEL:
+    its value in ``levels`` (one per stage, ``stage_levels``) plus its progress (0 ... 1), all / stacked's level:
 
       reach    A not held:                    1 - tanh(5 |grasp point - A|)
       grasp    A held (franka.grasp_terms):   A's rise from the table toward clearing B, 0 ... 1
@@ -366,10 +382,10 @@ def staged_stack_reward(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch
               (held & clear, closeness(hover)), (held & clear & over_xy, closeness(place)),
               (on_b, (opened + at_rest) / 2.0), (stacked, torch.zeros_like(speed)))
     reward, stage = torch.zeros_like(speed), torch.zeros_like(speed, dtype=torch.long)
-    for index, ((reached, progress), level) in enumerate(zip(stages, STAGE_LEVELS)):
+    for index, ((reached, progress), level) in enumerate(zip(stages, levels, strict=True)):
         reward = torch.where(reached, level + progress, reward)
         stage = torch.where(reached, index, stage)
-    return reward / STACKED_LEVEL, stage
+    return reward / levels[STACKED], stage
 
 
 def osc_torques(pose_error: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, q_rest: torch.Tensor,
