@@ -1,6 +1,6 @@
 """One line per run of a training round: the task's test-mode headline (the hands' consecutive successes, else the
-success rate, else the share of episodes to the time limit) with the best and the last checkpoint, and the training
-speed.
+success rate, else the share of episodes to the time limit) with the best and the last checkpoint, the training
+speed, and FrankaCubeStack's furthest stage in training.
 
     python benchmarks/rounds/round_results.py OUT_DIR NAME [NAME ...]
 
@@ -39,8 +39,9 @@ def main(out: pathlib.Path, names: list[str]) -> None:
         summary = read(out / f"{name}.summary.json")
         speed = summary.get("env_steps_per_s") or summary.get("steps_per_s")
         key, value = headline(best)
+        stage = f", furthest stage {summary['furthest_stage']:.2f}" if "furthest_stage" in summary else ""
         print(f"{name}: {key or headline(last)[0]} best {value}, last {headline(last)[1]}, env-steps/s {speed}, "
-              f"iterations {summary.get('iterations')}")
+              f"iterations {summary.get('iterations')}{stage}")
         if value is None:
             print(f"  {name}.eval_best.json: {json.dumps(best)[:600]}")
 
