@@ -5,7 +5,8 @@
 # trouble the hands had before they took rl_games' settings; so both seeds train with those settings and value
 # normalisation (FrankaCubeLift's recipe has it). The staged reward needs no shared critic input: the policy's
 # observation is the critic's (env.asymmetric_observations False).
-#   GPU 0  FrankaCubeStack seed 1, STACK_SECONDS (default 1200)
+#   GPU 0  FrankaCubeStack seed 1, STACK_SECONDS (default 1140, as ran 2026-11-28: with a cold start, the wheels and
+#          two evaluations per job, 23 minutes of a 30-minute lease)
 #   GPU 1  FrankaCubeStack seed 2, STACK_SECONDS
 # FIRST_GPU=2 moves the pair to GPUs 2 and 3 (rounds/round.sh): a 4-GPU host runs two such rounds at once.
 # Test mode: seed 11, best and last checkpoints, 1024 envs.
@@ -17,6 +18,6 @@ rounds=$(cd "$(dirname "$0")" && pwd)
 # shellcheck source=rl_games_form.sh
 . "$rounds/rl_games_form.sh"
 form="$RL_GAMES_FORM +train.algorithm.normalize_value=True"
-bash "$rounds/round.sh" "${1:-/tmp/stack_staged_2gpu}" "${STACK_SECONDS:-1200}" \
+bash "$rounds/round.sh" "${1:-/tmp/stack_staged_2gpu}" "${STACK_SECONDS:-1140}" \
   "stack1 0 FrankaCubeStack 1 $form" \
   "stack2 1 FrankaCubeStack 2 $form"
