@@ -172,6 +172,13 @@ def test_an_unknown_reward_kind_is_one_line_naming_the_key_and_the_kinds():
              overrides=["task.env.reward.kind=dense"])
 
 
+def reward_inputs(env) -> list[list]:
+    """What staged_stack_reward reads from the task, as lists (one row per env): A, B, grasp point, finger opening,
+    A's linear and angular velocity."""
+    return [t.tolist() for t in (env.cube_a.root_pos, env.cube_b.root_pos, env.arm.grasp_pos(), env.sim.dof_pos[:, 7],
+                                 env.cube_a.root_lin_vel, env.cube_a.root_ang_vel)]
+
+
 def test_stage_levels_of_the_yaml_set_what_each_stage_pays():
     levels = "[" + ",".join(str(v) for v in LIFT_HEAVY_LEVELS) + "]"
     env = make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
@@ -181,8 +188,7 @@ def test_stage_levels_of_the_yaml_set_what_each_stage_pays():
     a = np.stack([b + [0, 0, 0.06], b + [0, 0.2, -0.01], b + [0.03, 0, 0.06]])  # on B; on the table; off B's top
     place(env, a, np.tile(b, (3, 1)), np.tile(Q0, (3, 1)), lin_vel=[[0, 0, 0], [0, 0, 0], [0.05, 0, 0]])
     env.compute_reward()
-    state = [t.tolist() for t in (env.cube_a.root_pos, env.cube_b.root_pos, env.arm.grasp_pos(), env.sim.dof_pos[:, 7],
-                                  env.cube_a.root_lin_vel, env.cube_a.root_ang_vel)]
+    state = reward_inputs(env)
     expected = [reference_staged(*row, LIFT_HEAVY_LEVELS) for row in zip(*state)]
     assert [s for _, s in expected] == ["stacked", "reach", "reach"]
     np.testing.assert_allclose(env.rew_buf.tolist(), [r for r, _ in expected], atol=1e-6)
@@ -259,9 +265,7 @@ def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
     task_refresh = env.refresh_state
 
     def refresh_state() -> None:
-        read["state"] = [t[0].tolist() for t in (env.cube_a.root_pos, env.cube_b.root_pos, env.arm.grasp_pos(),
-                                                 env.sim.dof_pos[:, 7], env.cube_a.root_lin_vel,
-                                                 env.cube_a.root_ang_vel)]
+        read["state"] = [column[0] for column in reward_inputs(env)]
         task_refresh()
 
     env.refresh_state = refresh_state

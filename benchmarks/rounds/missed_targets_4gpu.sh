@@ -24,15 +24,15 @@ stack="$RL_GAMES_FORM +train.algorithm.normalize_value=True task.env.reward.stag
 bash "$here/gpu_train_eval.sh" "$out" "${STACK_SECONDS:-1140}" \
   "stack_lift 0 FrankaCubeStack 1 $stack" \
   "stack_lift_osc 1 FrankaCubeStack 1 $stack task.env.controlType=osc" &
-for gpu in 2 3; do
-  (
-    if [ "$gpu" = 2 ]; then hand=3 balls="1 2"; else hand=4 balls="7 8"; fi
-    bash "$here/gpu_train_eval.sh" "$out" "${HAND_SECONDS:-900}" "allegro$hand $gpu AllegroHand $hand num_envs=16384"
-    for seed in $balls; do  # 250 iterations, under a minute of training each: the 600 s cap is never reached
-      bash "$here/gpu_train_eval.sh" "$out" 600 "balance$seed $gpu BallBalance $seed $RL_GAMES_FORM"
-    done
-  ) &
-done
+hand_then_balls() {  # GPU, AllegroHand's seed, then BallBalance's seeds one after the other
+  local gpu=$1 hand=$2 seed; shift 2
+  bash "$here/gpu_train_eval.sh" "$out" "${HAND_SECONDS:-900}" "allegro$hand $gpu AllegroHand $hand num_envs=16384"
+  for seed in "$@"; do  # 250 iterations, under a minute of training each: the 600 s cap is never reached
+    bash "$here/gpu_train_eval.sh" "$out" 600 "balance$seed $gpu BallBalance $seed $RL_GAMES_FORM"
+  done
+}
+hand_then_balls 2 3 1 2 &
+hand_then_balls 3 4 7 8 &
 wait
 python3 "$here/rounds/round_results.py" "$out" stack_lift stack_lift_osc allegro3 allegro4 \
   balance1 balance2 balance7 balance8 | tee "$out/results.txt"

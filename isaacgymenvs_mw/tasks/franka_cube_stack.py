@@ -286,7 +286,7 @@ def stage_levels(value: object, key: str) -> tuple[float, ...]:
     if ok:
         ok = numbers[0] >= 0 and all(b >= a + 1 for a, b in itertools.pairwise(numbers))
     if not ok:
-        shown = list(numbers) if numbers is not None else value
+        shown = numbers if numbers is not None else value
         raise ConfigError(f"{key}={shown!r} is invalid: give {len(STAGES)} numbers, one per stage {list(STAGES)}, "
                           "the first >= 0 and each at least 1 above the one before (a stage pays its number + 0 ... 1)")
     return tuple(float(v) for v in numbers)
