@@ -13,12 +13,16 @@ from __future__ import annotations
 import gymnasium as gym
 import torch
 
+from isaacgymenvs_mw.tasks.base.public_names import ObservationBuffer, TaskOverridable
+
 _RENDER_MODES, _RENDER_FPS = ["human", "rgb_array"], 24
 
 
 class IGESurface:
-    """IsaacGymEnvs' public ``Env`` / ``VecTask`` names over a VecTask (read-only views), read from VecTask's
-    ``observations`` (``_built_observations()``), ``randomizer``, ``execution`` and ``env_steps``."""
+    """IsaacGymEnvs' public ``Env`` / ``VecTask`` names over a VecTask, read from VecTask's ``observations``
+    (``_built_observations()``), ``randomizer``, ``execution`` and env-step count. Each read-only name is a
+    ``TaskOverridable`` (tasks/base/public_names.py): a ported task that sets it, as IsaacGymEnvs' Env did, keeps its
+    own value."""
 
     # gymnasium's keys, and the gym keys IsaacGymEnvs' metadata uses (video recorders of either read theirs)
     metadata = {"render_modes": _RENDER_MODES, "render_fps": _RENDER_FPS,
@@ -27,27 +31,27 @@ class IGESurface:
     num_agents: int = 1
 
     # ------------------------------------------------------------- sizes
-    @property
+    @TaskOverridable
     def num_environments(self) -> int:
         """IsaacGymEnvs' second name for ``num_envs`` (VecTask's one name for it), kept for ported code."""
         return self.num_envs
 
-    @property
+    @TaskOverridable
     def num_obs(self) -> int:
         """The policy observation's size (with ``env.history.policy``, the stacked size the learner sees)."""
         return self._built_observations().num_obs
 
-    @property
+    @TaskOverridable
     def num_observations(self) -> int:
         """IsaacGymEnvs' ``env.numObservations``: here derived from the task's terms when the YAML leaves it out."""
         return self.num_obs
 
-    @property
+    @TaskOverridable
     def num_states(self) -> int:
         """The critic state's size per frame, 0 without one (``env.numStates``, or the task's state terms)."""
         return self._built_observations().num_states
 
-    @property
+    @TaskOverridable
     def num_acts(self) -> int:
         return self.num_actions
 
@@ -56,35 +60,36 @@ class IGESurface:
         return self.num_agents
 
     # ------------------------------------------------------------- spaces
-    @property
+    @TaskOverridable
     def obs_space(self) -> gym.spaces.Box:
         """Box(-inf, inf) of the policy observation, the shape of ``obs_dict["obs"]``."""
         return self._built_observations().obs_space
 
-    @property
+    @TaskOverridable
     def state_space(self) -> gym.spaces.Box:
         """Box(-inf, inf) of the critic state, the shape of ``obs_dict["states"]`` (frames stacked with
         ``env.history.critic``); shape (0,) without a critic state, as IsaacGymEnvs' for numStates 0."""
         return self._built_observations().state_space
 
-    @property
+    @TaskOverridable
     def act_space(self) -> gym.spaces.Box:
         """Box(-1, 1) of the actions (clamped to ``clip_actions`` in the step)."""
         return self._act_space
 
-    observation_space = obs_space
-    action_space = act_space
+    @TaskOverridable
+    def observation_space(self) -> gym.spaces.Box:
+        """gym's name for ``obs_space``, as IsaacGymEnvs' Env gives it."""
+        return self._built_observations().obs_space
+
+    @TaskOverridable
+    def action_space(self) -> gym.spaces.Box:
+        """gym's name for ``act_space``, as IsaacGymEnvs' Env gives it."""
+        return self._act_space
 
     # ------------------------------------------------------------- buffers
-    @property
-    def obs_buf(self) -> torch.Tensor:
-        """(num_envs, numObservations): the policy observation the task's terms (or the task) write each step."""
-        return self.observations.obs_buf
-
-    @property
-    def states_buf(self) -> torch.Tensor:
-        """(num_envs, numStates): the critic's privileged state."""
-        return self.observations.states_buf
+    obs_buf = ObservationBuffer("(num_envs, numObservations): the policy observation the task's terms (or the task) "
+                                "write each step; an assignment copies into it")
+    states_buf = ObservationBuffer("(num_envs, numStates): the critic's privileged state; an assignment copies into it")
 
     @property
     def randomize_buf(self) -> torch.Tensor:
@@ -98,27 +103,27 @@ class IGESurface:
                              "the task's `self.randomize_buf += 1` (it would count twice)")
 
     # ------------------------------------------------------------- clocks and devices
-    @property
+    @TaskOverridable
     def control_steps(self) -> int:
         """Env steps taken (the step execution's count, the run's one clock)."""
         return self.execution.steps
 
-    @property
+    @TaskOverridable
     def total_train_env_frames(self) -> int:
         """Env frames of the run so far (``env_steps`` as an int: a host read; hooks read ``env_steps``)."""
-        return int(self.env_steps)
+        return int(self._env_steps())
 
-    @property
+    @TaskOverridable
     def device_type(self) -> str:
         """"cuda" or "cpu": where the simulation runs."""
         return torch.device(self.device).type
 
-    @property
+    @TaskOverridable
     def device_id(self) -> int:
         """The simulation's CUDA device index (0 on the CPU, as IsaacGymEnvs)."""
         return torch.device(self.device).index or 0
 
-    @property
+    @TaskOverridable
     def sim_initialized(self) -> bool:
         """True once ``create_sim`` has built the simulator."""
         return getattr(self, "sim", None) is not None

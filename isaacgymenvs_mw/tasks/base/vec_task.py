@@ -19,6 +19,7 @@ A ported IsaacGymEnvs task may still override ``post_physics_step``; it then cal
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Callable
 
@@ -36,6 +37,7 @@ from isaacgymenvs_mw.tasks.base.ige_surface import IGESurface
 from isaacgymenvs_mw.tasks.base.metrics import SUCCESS, SUCCESS_RATE, Metric, TaskMetrics
 from isaacgymenvs_mw.tasks.base.observation_composer import Observations
 from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, ObsTerm, sensor_terms
+from isaacgymenvs_mw.tasks.base.public_names import TaskOverridable, check_framework_objects
 from isaacgymenvs_mw.tasks.base.randomization import Randomizer
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.sim_factory import build_simulator, yaml_model_request
@@ -56,6 +58,24 @@ class VecTask(IGESurface):
     rew_buf, reset_buf, timeout_buf, progress_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
     terminate_buf, success_buf, nonfinite_buf = EpisodeBuffer(), EpisodeBuffer(), EpisodeBuffer()
     nonfinite_inputs_buf, nonfinite_inputs_count = EpisodeBuffer(), EpisodeBuffer()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Wrap a task class's own ``__init__`` so that, once the outermost one returns, VecTask checks that the task
+        left the objects its step runs on in place (tasks/base/public_names.py)."""
+        super().__init_subclass__(**kwargs)
+        init = cls.__dict__.get("__init__")
+        if init is None:
+            return
+
+        @functools.wraps(init)
+        def checked_init(self: VecTask, *args: Any, **kw: Any) -> None:
+            init(self, *args, **kw)
+            if type(self).__init__ is checked_init:  # the outermost constructor: the task is built
+                check_framework_objects(self, {"episode": Episode, "observations": Observations,
+                                               "randomizer": Randomizer, "execution": StepExecution,
+                                               "metrics": TaskMetrics, "display": Display, "extras": dict})
+
+        cls.__init__ = checked_init
 
     def __init__(self, config: dict, rl_device: str, sim_device: str, graphics_device_id: int, headless: bool,
                  virtual_screen_capture: bool = False, force_render: bool = False) -> None:
@@ -279,10 +299,10 @@ class VecTask(IGESurface):
         self.extras.update(self.episode.step_extras(self.rl_device))
         self.observations.step_outputs(self.obs_dict, self.execution.steps)
 
-        if self.control_steps % self.overflow_check_interval == 0:
+        if self.execution.steps % self.overflow_check_interval == 0:
             self.sim.poll_overflow()
             self.episode.blowups.poll(self.overflow_check_interval)
-        self.display.show(self.control_dt, self.control_steps)
+        self.display.show(self.control_dt, self.execution.steps)
         return self.obs_dict, self.rew_buf.to(self.rl_device), self.reset_buf.to(self.rl_device), self.extras
 
     def _before_physics(self, actions: torch.Tensor) -> None:
@@ -310,7 +330,7 @@ class VecTask(IGESurface):
     def _observe_images(self, step: int) -> None:
         self.observations.observe_images(self.reset_buf != 0, step)
 
-    @property
+    @TaskOverridable
     def step_execution(self) -> str:
         """How the step's torch work runs: "eager", "compiled", "captured" or "compiled+captured"."""
         return self.execution.mode
@@ -343,7 +363,7 @@ class VecTask(IGESurface):
         # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
         self.randomizer.step_count.fill_(env_frames // self.num_envs)
 
-    @property
+    @TaskOverridable
     def env_steps(self) -> torch.Tensor:
         """The run's env steps so far over this process's envs, a () int64 tensor on the sim device: num_envs per
         step, as IsaacGymEnvs' frame count (``set_train_info(env_frames)``) counts. Reward schedules and periodic events
@@ -351,6 +371,10 @@ class VecTask(IGESurface):
         freeze). A run from a checkpoint starts at the checkpoint's (resumed or in test mode). Read it each step: it
         is computed from the one counter the randomisation schedules and the penalty curriculum also read (steps
         per env, ``env_steps // num_envs``)."""
+        return self._env_steps()
+
+    def _env_steps(self) -> torch.Tensor:
+        # the framework's reads of the count: a task may keep its own ``env_steps`` (tasks/base/public_names.py)
         return self.randomizer.step_count.long() * self.num_envs
 
     def get_env_state(self) -> None:  # IsaacGymEnvs' checkpoint hooks: nothing beyond the policy to save
