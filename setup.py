@@ -42,7 +42,7 @@ setup(
     install_requires=INSTALL_REQUIRES,
     # rl_games: IsaacGymEnvs' learner, the second learner (learner=rl_games); 1.6.5 is the first release that installs
     # on Python 3.11 and 3.12 (earlier ones pin gym). onnxruntime: the exported-policy test.
-    extras_require={"rl_games": [RL_GAMES],
+    extras_require={"rl-games": [RL_GAMES],  # the spelling every pip accepts (PEP 685)
                     "test": ["pytest>=7", "onnxruntime>=1.17", RL_GAMES]},
     license="BSD-3-Clause",
 )

@@ -39,9 +39,9 @@ def place_cube(env, pos, quat) -> None:
                         asset="object", refresh=True)
 
 
-def assert_reward_is_the_reference(env, pos, quat, actions, fall_penalty: float, reward_scale: float = 0.01) -> None:
+def assert_reward_is_the_reference(env, pos, quat, actions, fall_penalty: float, reward_scale: float = 1.0) -> None:
     """The task's reward with the cube placed at (pos, quat) and the given last actions equals ``reward_scale`` x
-    the reference formula."""
+    the reference formula (1: a task YAML holds IsaacGymEnvs' reward unscaled; the learner recipe scales it)."""
     place_cube(env, pos, quat)
     env.actions.copy_(torch.tensor(actions, dtype=torch.float32))
     env.refresh_state()

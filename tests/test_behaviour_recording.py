@@ -58,6 +58,16 @@ SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.
 
 # The recording's default that a later default replaced: FrankaCubeStack's reward became the staged one (issue 58).
 FORMER_DEFAULTS = {"FrankaCubeStack": ["task.env.reward.kind=isaacgymenvs"]}
+# Where the recorded reward's factor moved from the task (env.rewardScale) to the learner recipe (issue 70): the
+# recording holds the reward the learner sees, the task's times the recipe's reward_scale.
+RECIPE_SCALED = ("Ant", "Humanoid", "FrankaCabinet", "AllegroHand")
+
+
+def _learner_reward_scale(task: str) -> float:
+    from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
+    from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+    return recipe_reward_scale(to_dict(compose_config([f"task={task}"]).train)) if task in RECIPE_SCALED else 1.0
 
 
 def _make(task: str):
@@ -72,6 +82,7 @@ def _make(task: str):
 
 def run_task(task: str) -> dict[str, np.ndarray]:
     env = _make(task)
+    reward_scale = _learner_reward_scale(task)
     gen = torch.Generator().manual_seed(SEED)
     actions = [torch.zeros(NUM_ENVS, env.num_actions)] * STEPS
     actions += [torch.rand(NUM_ENVS, env.num_actions, generator=gen) * 2 - 1 for _ in range(STEPS)]
@@ -89,7 +100,7 @@ def run_task(task: str) -> dict[str, np.ndarray]:
             add("states", obs["states"])
         if "camera" in obs:
             add("camera", obs["camera"])
-        add("rew", rew)
+        add("rew", rew * reward_scale if reward_scale != 1.0 else rew)
         add("reset", reset)
         add("time_outs", extras["time_outs"])
         # The task's episode sums, under the names the recording gave them (the declared metrics' were then

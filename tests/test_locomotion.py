@@ -147,7 +147,7 @@ class Reference:
         fallen = qpos[2] < e["terminationHeight"]
         if fallen:
             total = e["deathCost"]
-        return total * e["rewardScale"], bool(fallen)
+        return total, bool(fallen)
 
 
 def state(task) -> tuple[np.ndarray, ...]:
@@ -270,7 +270,7 @@ def test_a_fall_earns_the_death_cost_and_resets_to_the_start_pose(request, name)
     task.sim.write_state(mask, root_pos=low)
     obs, rew, reset, extras = task.step(torch.zeros(task.num_envs, task.num_actions))
     assert reset[0] == 1 and not reset[1:].any()
-    assert float(rew[0]) == pytest.approx(env["deathCost"] * env["rewardScale"])
+    assert float(rew[0]) == pytest.approx(env["deathCost"])
     assert extras["time_outs"][0] == 0
     # the observation of env 0 is its new episode's first state
     layout = task.observations.obs_layout

@@ -66,3 +66,39 @@ def test_bad_scales_fail_in_one_line_naming_the_key(env, ige_keys, message):
     with pytest.raises(ConfigError) as err:
         RewardTerms.from_env(TwoTerms(), env, N, "cpu", ige_keys=ige_keys)
     assert str(err.value) == message
+
+
+# reward_shaper.scale_value of IsaacGymEnvs' <Task>PPO.yaml (isaac-sim/IsaacGymEnvs, isaacgymenvs/cfg/train)
+IGE_SHAPER_SCALE = {"Ant": 0.01, "Humanoid": 0.01, "FrankaCabinet": 0.01, "AllegroHand": 0.01, "ShadowHand": 0.01}
+
+
+@pytest.mark.parametrize("task", sorted(IGE_SHAPER_SCALE))
+def test_the_rsl_rl_recipe_scales_the_reward_as_isaacgymenvs_train_yaml_does(task):
+    """The task YAML holds IsaacGymEnvs' reward unscaled; the rsl_rl recipe's runner.reward_scale is the factor
+    IsaacGymEnvs' rl_games YAML put on it (issue 70)."""
+    from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
+    from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+    cfg = compose_config([f"task={task}"])
+    assert "rewardScale" not in cfg.task.env
+    assert recipe_reward_scale(to_dict(cfg.train)) == IGE_SHAPER_SCALE[task]
+
+
+def test_the_env_adapter_gives_ppo_the_task_reward_times_the_recipe_scale():
+    from isaacgymenvs_mw import make
+    from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+
+    task = make("Ant", num_envs=3, sim_device="cpu", rl_device="cpu", seed=0)
+    env = RslRlVecEnv(task, reward_scale=0.01)
+    _, rew, _, _ = env.step(torch.rand(3, task.num_actions) * 2 - 1)
+    torch.testing.assert_close(rew, task.rew_buf * 0.01)
+    assert not torch.equal(rew, task.rew_buf)
+
+
+def test_env_reward_scale_in_a_task_yaml_says_where_the_factor_went():
+    from isaacgymenvs_mw import make
+    from isaacgymenvs_mw.utils.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^Ant: task\.env\.rewardScale=0\.01 is no longer a task key: the learner "
+                                          r"recipe scales the reward \(train\.runner\.reward_scale"):
+        make("Ant", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=["+task.env.rewardScale=0.01"])

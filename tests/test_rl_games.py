@@ -170,10 +170,81 @@ IGE_REWARD_SCALE = {"AllegroHand": 0.01, "ShadowHand": 0.01, "Ant": 0.01, "Cartp
 
 @pytest.mark.parametrize("task", sorted(IGE_REWARD_SCALE))
 def test_shipped_rl_games_recipes_scale_the_reward_once_as_isaacgymenvs(task):
-    """The learner's reward is the task's (x env.rewardScale, where the task has one) x reward_shaper.scale_value.
-    AllegroHand's recipe once applied IGE's 0.01 in both places (1e-4): the value targets sat ~20x below the
-    normaliser's spread (left by the untrained critic's first values), and the policy learnt to drop the cube."""
+    """The learner's reward is the task's x reward_shaper.scale_value, and no task YAML scales it (issue 70: a task YAML
+    that did, with IsaacGymEnvs' own train YAML, scaled IGE's 0.01 twice, 1e-4 in all, and nothing was learnt)."""
     cfg = compose_config(["learner=rl_games", f"task={task}", "sim_device=cpu", "rl_device=cpu"])
-    task_scale = float(cfg.task.env.get("rewardScale", 1.0))
+    assert "rewardScale" not in cfg.task.env
+    task_scale = 1.0
     shaper = cfg.train.params.config.get("reward_shaper") or {}
     assert task_scale * float(shaper.get("scale_value", 1.0)) == pytest.approx(IGE_REWARD_SCALE[task])
+
+
+@pytest.mark.parametrize("task, train, scale", [("Cartpole", "CartpolePPO", 0.1), ("Ant", "AntPPO", 0.01)])
+def test_isaacgymenvs_train_yamls_train_with_few_envs_and_evaluate_scaling_the_reward_once(tmp_path, run_args, task,
+                                                                                            train, scale, capsys):
+    """IsaacGymEnvs' CartpolePPO.yaml and AntPPO.yaml, unchanged, at num_envs=64 (their minibatch_size is for
+    thousands of envs: rl_games refuses one that does not divide the iteration's samples, so one line says which is
+    used), then test mode on the checkpoint; the learner's reward is the task's (IsaacGymEnvs' formula, unscaled) x
+    the YAML's scale_value, once."""
+    args = [f"task={task}", f"train={train}", "num_envs=64", *run_args]
+    summary = run(compose_config([*args, "max_iterations=2"], config_dir=IGE_CFG))
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 16 * 64
+    printed = capsys.readouterr().out
+    assert "minibatch_size=" in printed and "using 1024" in printed
+    run_dir = _run_dir(tmp_path / "runs", task)
+    result = run(compose_config([*args, "test=True", f"checkpoint={run_dir / 'model_2.pt'}"], config_dir=IGE_CFG))
+    assert result["episodes"] == 64
+
+    from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
+    from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
+    from isaacgymenvs_mw.tasks.build import build_task
+    from isaacgymenvs_mw.utils.config import to_dict
+
+    cfg = compose_config([*args, "num_envs=8"], config_dir=IGE_CFG)
+    assert "rewardScale" not in cfg.task.env and recipe_reward_scale(to_dict(cfg.train)) == scale
+    task_ = build_task(cfg)
+    runner = RlGamesRunner(RlGamesVecEnv(task_, scale), rl_games_params(cfg, task_), log_dir=None, device="cpu")
+    task_.reset()
+    _, rew, _, _ = task_.step(torch.rand(8, task_.num_actions) * 2 - 1)
+    if task == "Cartpole":  # IsaacGymEnvs' formula on the state the step ended in
+        from cartpole_reference import cartpole_reward_reference
+
+        dof_pos, dof_vel = task_.sim.dof_pos.numpy(), task_.sim.dof_vel.numpy()
+        ref, _, _ = cartpole_reward_reference(dof_pos[:, 0], dof_vel[:, 0], dof_pos[:, 1], dof_vel[:, 1],
+                                              cfg.task.env.resetDist, task_.progress_buf.numpy(),
+                                              task_.max_episode_length)
+        np.testing.assert_allclose(rew.numpy(), ref, rtol=1e-5, atol=1e-6)
+    shaped = runner.agent.rewards_shaper(rew)
+    torch.testing.assert_close(shaped, rew * scale)
+
+
+def test_rl_games_ranks_without_a_writer_build_their_runner(monkeypatch):
+    """Under torchrun rl_games gives ranks above 0 no SummaryWriter (``agent.writer`` None); such a rank's runner
+    builds and logs nothing (it once called ``writer.close()`` on None and torchrun killed the job)."""
+    from rl_games.algos_torch import a2c_continuous
+
+    from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, _NoWriter, rl_games_params
+    from isaacgymenvs_mw.tasks.build import build_task
+
+    built = a2c_continuous.A2CAgent.__init__
+
+    def as_rank_1(self, *args, **kwargs):
+        built(self, *args, **kwargs)
+        self.writer.close()
+        self.writer = None  # what rl_games leaves on a rank above 0
+
+    monkeypatch.setattr(a2c_continuous.A2CAgent, "__init__", as_rank_1)
+    cfg = compose_config(["learner=rl_games", "task=Cartpole", "num_envs=4", "sim_device=cpu", "rl_device=cpu",
+                          "headless=True"])
+    task = build_task(cfg)
+    runner = RlGamesRunner(RlGamesVecEnv(task), rl_games_params(cfg, task), log_dir=None, device="cpu")
+    assert isinstance(runner.agent.writer, _NoWriter)
+
+
+def test_learner_rl_games_without_rl_games_installed_is_one_line(monkeypatch):
+    from isaacgymenvs_mw.learning.train_config import check_before_start
+
+    monkeypatch.setitem(sys.modules, "rl_games", None)  # what importlib sees when the package is absent
+    cfg = compose_config(["learner=rl_games", "task=Cartpole", "sim_device=cpu", "rl_device=cpu"])
+    with pytest.raises(ConfigError, match=r'^learner=rl_games .* not installed: pip install -e "\.\[rl-games\]"'):
+        check_before_start(cfg)

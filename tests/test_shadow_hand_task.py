@@ -107,7 +107,7 @@ def test_openai_observation_is_fingertip_positions_cube_position_relative_rotati
     np.testing.assert_allclose(obs[:, 22:42].numpy(), task.actions.numpy(), atol=1e-6)
 
 
-def test_reward_is_the_ige_formula_times_reward_scale(env):
+def test_reward_is_the_ige_formula(env):
     env.reset()
     rng = np.random.default_rng(4)
     start = env.object_start_pos.numpy()

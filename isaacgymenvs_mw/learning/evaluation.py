@@ -10,14 +10,15 @@ from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
 
 
-def evaluate(task, policy, device: str) -> dict:
-    """Run every env for one full episode with the deterministic policy; report per-episode means.
+def evaluate(task, policy, device: str, reward_scale: float = 1.0) -> dict:
+    """Run every env for one full episode with the deterministic policy; report per-episode means (the reward
+    times the recipe's ``reward_scale``, as training reports it).
 
     Each env contributes its first episode, so the result is an unbiased sample of ``num_envs`` episodes from
     the task's reset distribution (commands too, for the legged tasks).
     """
     task.metrics.evaluate()  # the task records its per-step metrics (tasks/base/metrics.py), if it declares any
-    env = RslRlVecEnv(task)
+    env = RslRlVecEnv(task, reward_scale)
     n = env.num_envs
     ret = torch.zeros(n, device=env.device)
     length = torch.zeros(n, device=env.device)

@@ -21,7 +21,7 @@ from isaacgymenvs_mw.learning.reporting import device_description, package_versi
 from isaacgymenvs_mw.learning.rl_games_config import is_rl_games_config
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.sweep import evaluation_outputs
-from isaacgymenvs_mw.learning.train_config import check_train_config
+from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
 from isaacgymenvs_mw.learning.training_run import TrainingRun, episode_metrics
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, success_metric_key, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
@@ -80,7 +80,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         policy = runner.get_inference_policy(device=task.rl_device)
         onnx_path, jit_path = export_policy(runner, exported, task=task)
         print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
-        result = evaluate(task, policy, task.rl_device)
+        result = evaluate(task, policy, task.rl_device, recipe_reward_scale(to_dict(cfg.train)))
         result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
                       device=device_description(task.sim_device), versions=package_versions())
         write_json(eval_path, result)
@@ -141,10 +141,10 @@ def learner(cfg: DictConfig, task, train_cfg: dict | None) -> tuple[Callable[[],
 
         params = rl_games_params(cfg, task)
         experiment = str(params["config"]["name"] or cfg.experiment or cfg.task_name)
-        games_env = RlGamesVecEnv(task)
+        games_env = RlGamesVecEnv(task, recipe_reward_scale({"params": params}))
         return (lambda: RlGamesRunner(games_env, params, log_dir=None, device=task.rl_device, verbose=verbose),
                 experiment, int(params["config"].get("max_epochs", -1)))
-    env = RslRlVecEnv(task)
+    env = RslRlVecEnv(task, recipe_reward_scale(to_dict(cfg.train)))
     experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
     return lambda: Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=verbose), experiment, -1
 

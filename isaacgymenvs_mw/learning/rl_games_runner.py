@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.loggers import make_writer
@@ -54,16 +54,8 @@ def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
     if task.observations.images is not None:
         raise ConfigError(f"task={cfg.task_name} observes camera images, which learner=rl_games does not feed to a "
                           "CNN here: train it with the rsl_rl learner")
-    task_scale = OmegaConf.select(cfg, "task.env.rewardScale", default=1.0)
-    shaper_scale = (config.get("reward_shaper") or {}).get("scale_value", 1.0)
-    if float(task_scale) != 1.0 and float(shaper_scale) != 1.0:
-        # Some of our tasks apply IsaacGymEnvs' rl_games reward scale themselves (their rsl_rl recipes need it), so an
-        # IsaacGymEnvs YAML's reward_shaper scales the reward a second time.
-        print(f"[train] note: task.env.rewardScale={task_scale:g} and train.params.config.reward_shaper.scale_value="
-              f"{shaper_scale:g} both scale the reward ({float(task_scale) * float(shaper_scale):g} in all); for "
-              f"IsaacGymEnvs' scale give task.env.rewardScale=1 or train.params.config.reward_shaper.scale_value=1",
-              flush=True)
     config["num_actors"] = task.num_envs
+    fit_minibatches(config, task.num_envs, announce=not cfg.test)
     config["device"] = config["device_name"] = task.rl_device
     config["multi_gpu"] = bool(cfg.get("multi_gpu", False))
     config.setdefault("name", cfg.task_name)
@@ -72,13 +64,35 @@ def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
     return params
 
 
+def fit_minibatches(config: dict, num_envs: int, announce: bool) -> None:
+    """rl_games refuses a ``minibatch_size`` that does not divide an iteration's samples (``horizon_length`` x envs):
+    IsaacGymEnvs' YAMLs size it for their default envs (AntPPO's 32768 at 4096 envs), so a run with fewer envs (a
+    CPU, a test) takes the largest divisor below it instead, with one line when it trains (``announce``); test mode
+    builds the same agent but never updates, so it adapts silently. ``central_value_config`` alike."""
+    samples = int(config.get("horizon_length", 0)) * num_envs
+    sections = [("train.params.config", config)]
+    if isinstance(config.get("central_value_config"), dict):
+        sections.append(("train.params.config.central_value_config", config["central_value_config"]))
+    for where, section in sections:
+        size = section.get("minibatch_size") or num_envs * int(section.get("minibatch_size_per_env", 0) or 0)
+        if samples <= 0 or int(size) <= 0 or samples % int(size) == 0:
+            continue
+        fitted = max(d for d in range(1, min(int(size), samples) + 1) if samples % d == 0)
+        section["minibatch_size"] = fitted
+        if announce:
+            print(f"[train] note: {where}.minibatch_size={size} does not divide an iteration's {samples} samples "
+                  f"({num_envs} envs x horizon_length {config.get('horizon_length')}), as rl_games requires: "
+                  f"using {fitted}", flush=True)
+
+
 class RlGamesVecEnv:
     """Presents a VecTask to rl_games (its IVecEnv contract: ``step`` returns the obs dict, rewards, dones and
     extras, ``extras['time_outs']`` bootstraps), keeping the same device-side episode statistics as the rsl_rl
     adapter. ``on_step`` (set by the runner) runs after each step: stop requests and progress lines."""
 
-    def __init__(self, task: VecTask) -> None:
+    def __init__(self, task: VecTask, reward_scale: float = 1.0) -> None:
         self.task = task
+        self.reward_scale = float(reward_scale)  # reward_shaper.scale_value: rl_games applies it, the statistics too
         self.num_envs = task.num_envs
         self.max_episode_length = task.max_episode_length
         self.device = task.rl_device
@@ -92,7 +106,8 @@ class RlGamesVecEnv:
 
     def step(self, actions: torch.Tensor) -> tuple[dict, torch.Tensor, torch.Tensor, dict]:
         obs_dict, rew, reset, extras = self.task.step(actions)
-        record_step(self.stats, self.task, rew, reset, extras)
+        # the statistics report the reward rl_games learns from (its reward_shaper scales what it is given)
+        record_step(self.stats, self.task, rew * self.reward_scale if self.reward_scale != 1.0 else rew, reset, extras)
         if self.on_step is not None:
             self.on_step()
         return _rl_games_obs(obs_dict), rew, reset, extras
@@ -172,7 +187,8 @@ class RlGamesRunner(TrainingRun):
             agent_params["config"].update(train_dir=scratch, full_experiment_name="scratch")
             with contextlib.nullcontext() if verbose else contextlib.redirect_stdout(io.StringIO()):
                 self.agent = A2CAgent(base_name="run", params=agent_params)
-            self.agent.writer.close()
+            if self.agent.writer is not None:  # rl_games makes a writer on rank 0 only
+                self.agent.writer.close()
         self.agent.writer = _NoWriter()
         self.gpu_world_size = self.agent.world_size
         self.is_distributed = self.agent.multi_gpu

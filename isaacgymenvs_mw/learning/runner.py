@@ -32,6 +32,7 @@ def rsl_rl_config(train_cfg: dict) -> dict:
     """Flatten our train YAML (runner/algorithm/actor/critic) into the dict OnPolicyRunner expects."""
     check_train_config(train_cfg)
     runner = dict(train_cfg["runner"])
+    runner.pop("reward_scale", None)  # the env adapter's (RslRlVecEnv), not OnPolicyRunner's
     for key in ("num_steps_per_env", "max_iterations", "save_interval", "obs_groups"):
         if key not in runner:
             raise ConfigError(f"train.runner.{key} is required")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.rl_games_config import check_rl_games_config, is_rl_games_config
@@ -27,6 +29,7 @@ _TRAIN_CHECKS = {
     ("runner", "max_iterations"): lambda v, k: whole_number(v, k, 0),
     ("runner", "save_interval"): lambda v, k: whole_number(v, k, 1),
     ("runner", "init_at_random_ep_len"): boolean,
+    ("runner", "reward_scale"): lambda v, k: real_number(v, k, 0.0, low_open=True),
     ("algorithm", "learning_rate"): lambda v, k: real_number(v, k, 0.0, low_open=True),
     ("algorithm", "desired_kl"): lambda v, k: v is None or real_number(v, k, 0.0, low_open=True),
     ("algorithm", "num_learning_epochs"): lambda v, k: whole_number(v, k, 1),
@@ -69,6 +72,9 @@ def check_train_config(train_cfg: dict, learner: str | None = None) -> None:
     YAML when it is rl_games."""
     if is_rl_games_config(train_cfg):
         check_rl_games_config(train_cfg)
+        if importlib.util.find_spec("rl_games") is None:
+            raise ConfigError("learner=rl_games (an rl_games train YAML) needs rl_games, which is not installed: "
+                              "pip install -e \".[rl-games]\" (or pip install \"rl-games>=1.6.5,<1.7\")")
         return
     if learner == "rl_games":
         raise ConfigError("learner=rl_games, but the train YAML is rsl-rl-lib's (runner/algorithm/actor/critic): give "
@@ -99,3 +105,13 @@ def check_train_config(train_cfg: dict, learner: str | None = None) -> None:
     init_std = ((train_cfg.get("actor") or {}).get("distribution_cfg") or {}).get("init_std")
     if init_std is not None:
         real_number(init_std, "train.actor.distribution_cfg.init_std", 0.0, low_open=True)
+
+
+def recipe_reward_scale(train_cfg: dict) -> float:
+    """The factor the learner recipe puts on the task's reward: ``runner.reward_scale`` of an rsl-rl-lib YAML,
+    ``params.config.reward_shaper.scale_value`` of an rl_games one (IsaacGymEnvs' place for it); 1 when absent. A task
+    YAML holds IsaacGymEnvs' reward unscaled, so an IsaacGymEnvs train YAML scales it once, as in IsaacGymEnvs."""
+    if is_rl_games_config(train_cfg):
+        shaper = (train_cfg["params"].get("config") or {}).get("reward_shaper") or {}
+        return float(shaper.get("scale_value", 1.0))
+    return float((train_cfg.get("runner") or {}).get("reward_scale", 1.0))

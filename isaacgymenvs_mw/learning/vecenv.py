@@ -120,10 +120,13 @@ def record_step(stats: EpisodeStats, task: VecTask, rew: torch.Tensor, reset: to
 
 class RslRlVecEnv(VecEnv):
     """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs), 'critic' (states; obs if numStates is 0) and,
-    for a task with image terms, 'camera' ((num_envs, C, H, W) uint8; ``learning/models.py`` scales it)."""
+    for a task with image terms, 'camera' ((num_envs, C, H, W) uint8; ``learning/models.py`` scales it).
+    ``reward_scale``: the recipe's factor on the task's reward (``train.runner.reward_scale``), applied before the
+    learner and the episode statistics see it."""
 
-    def __init__(self, task: VecTask) -> None:
+    def __init__(self, task: VecTask, reward_scale: float = 1.0) -> None:
         self.task = task
+        self.reward_scale = float(reward_scale)
         self.num_envs = task.num_envs
         self.num_actions = task.num_actions
         self.max_episode_length = task.max_episode_length
@@ -153,6 +156,8 @@ class RslRlVecEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         obs_dict, rew, reset, extras = self.task.step(actions)
+        if self.reward_scale != 1.0:
+            rew = rew * self.reward_scale
         self._obs = self._to_tensordict(obs_dict)
         record_step(self.stats, self.task, rew, reset, extras)
         return self._obs, rew, reset, extras

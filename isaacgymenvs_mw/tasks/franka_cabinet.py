@@ -19,13 +19,14 @@ import torch
 
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.env_keys import refuse_reward_scale
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import FrankaArm
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 # env keys of the task YAML (IsaacGymEnvs' names) that are plain numbers.
 _NUMBER_KEYS = ("actionScale", "fingerSpeedScale", "dofVelocityScale", "startDofNoise", "openDistance",
-                "pastHandleReward", "rewardScale")
+                "pastHandleReward")
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
 REWARD_SCALE_KEYS = {"handle_distance": "distRewardScale", "alignment": "rotRewardScale",
                      "around_handle": "aroundHandleRewardScale", "open": "openRewardScale",
@@ -46,6 +47,7 @@ class FrankaCabinet(VecTask):
                    if k not in env]
         if missing:
             raise ConfigError(f"FrankaCabinet: the task YAML's env section lacks {missing}")
+        refuse_reward_scale(type(self).__name__, env)
         self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
@@ -107,8 +109,7 @@ class FrankaCabinet(VecTask):
     def compute_reward(self) -> None:
         reward = self.rewards.compute(self.nonfinite_buf)
         past = fingers_past_handle(self.left_finger, self.right_finger, self.handle_pos, self.opening_axis)
-        self.rew_buf[:] = (torch.where(past, self.env_numbers["pastHandleReward"], reward)
-                           * self.env_numbers["rewardScale"])
+        self.rew_buf[:] = torch.where(past, self.env_numbers["pastHandleReward"], reward)
 
     # Reward terms: each returns its per-step value; its YAML scale multiplies it (REWARD_SCALE_KEYS).
     def _reward_handle_distance(self) -> torch.Tensor:

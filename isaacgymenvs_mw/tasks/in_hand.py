@@ -36,6 +36,7 @@ from isaacgymenvs_mw.sim.couplings import joint_couplings, servo_transmission
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING, Metric
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.base.env_keys import refuse_reward_scale
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -56,8 +57,7 @@ FORCE_OBS_SCALE = 10.0  # IGE's force_torque_obs_scale: joint forces (and the Sh
 GOAL_BELOW_START = 0.04
 # env keys of the task YAML that are plain numbers
 _NUMBER_KEYS = ("dofSpeedScale", "actionsMovingAverage", "resetPositionNoise", "resetDofPosRandomInterval",
-                "resetDofVelRandomInterval", "rotEps", "fallDistance", "successTolerance", "averFactor",
-                "rewardScale")
+                "resetDofVelRandomInterval", "rotEps", "fallDistance", "successTolerance", "averFactor")
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
 # IGE's consecutive_successes (a running average over resets, averFactor), the goals reached per ended episode, and
 # in test mode each env's first episode's count.
@@ -80,6 +80,7 @@ class InHandTask(VecTask):
         missing = [k for k in _NUMBER_KEYS + tuple(REWARD_SCALE_KEYS.values()) if k not in env]
         if missing:
             raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
+        refuse_reward_scale(type(self).__name__, env)
         self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
         self.observation_type = observation_type(env.get("observationType", "full_state"), self.observation_types)
         self.asymmetric = bool(env.get("asymmetric_observations", False))
@@ -213,7 +214,7 @@ class InHandTask(VecTask):
         return int(self.max_episode_length) * (self.max_consecutive_successes + 1)
 
     def compute_reward(self) -> None:
-        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf) * self.env_numbers["rewardScale"]
+        self.rew_buf[:] = self.rewards.compute(self.nonfinite_buf)
 
     # Reward terms (IsaacGymEnvs' compute_hand_reward, one term per summand).
     def _reward_dist(self) -> torch.Tensor:

@@ -28,6 +28,7 @@ import torch
 from isaacgymenvs_mw.tasks.base.metrics import PER_STEP, Metric
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms, reward_methods
+from isaacgymenvs_mw.tasks.base.env_keys import refuse_reward_scale
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse, wrap_to_pi, yaw_from_quat
@@ -36,7 +37,7 @@ from isaacgymenvs_mw.utils.rotations import quat_rotate, quat_rotate_inverse, wr
 _SCALAR_KEYS = (
     "powerScale", "headingWeight", "upWeight", "aliveReward", "actionsCost", "energyCost", "jointsAtLimitCost",
     "deathCost", "terminationHeight", "dofVelocityScale", "angularVelocityScale", "contactForceScale",
-    "upThreshold", "headingThreshold", "jointsAtLimitThreshold", "rewardScale", "resetDofPosNoise",
+    "upThreshold", "headingThreshold", "jointsAtLimitThreshold", "resetDofPosNoise",
     "resetDofVelNoise",
 )
 FORWARD_SPEED = Metric("forward_speed", PER_STEP)  # test mode: the torso's speed along +x (m/s), each step
@@ -56,6 +57,7 @@ class LocomotionTask(VecTask):
         missing = [k for k in _SCALAR_KEYS + ("target", "footContactSensors") if k not in env]
         if missing:
             raise ConfigError(f"{type(self).__name__}: the task YAML's env section lacks {missing}")
+        refuse_reward_scale(type(self).__name__, env)
         self.env_numbers = {key: float(env[key]) for key in _SCALAR_KEYS}
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
@@ -222,7 +224,7 @@ class LocomotionTask(VecTask):
         # blown-up world earns nothing (its body states are NaN until the next physics step).
         earned = self.rewards.compute(self.terminate_buf)
         total = torch.where(self.terminate_buf, torch.full_like(self.rew_buf, self.env_numbers["deathCost"]), earned)
-        self.rew_buf[:] = total * self.env_numbers["rewardScale"]
+        self.rew_buf[:] = total
 
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, nd, dev = self.num_envs, self.sim.num_dof, self.device
@@ -240,7 +242,7 @@ class LocomotionTask(VecTask):
         self._refresh_torso_state()
 
     # ------------------------------------------------------------ reward terms
-    # Each returns its contribution to the step's reward (sign and weight included), before rewardScale.
+    # Each returns its contribution to the step's reward (sign and weight included); the learner recipe scales the sum.
     def _reward_progress(self) -> torch.Tensor:
         # rewards moving toward the target: the drop in horizontal distance over the step / policy dt (m/s)
         return self.progress_speed

@@ -14,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import MissingMandatoryValue
 
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
+from isaacgymenvs_mw.utils.user_config import user_config_view
 
 CFG_DIR = Path(__file__).resolve().parents[2] / "cfg"
 
@@ -55,8 +56,8 @@ def _register_user_config_first() -> None:
             main = next((i for i, e in enumerate(path) if e.provider == "main"), None)
             if main is None:
                 return
-            for folder in _EXTRA_CONFIG_DIRS:
-                search_path.append("command-line", f"file://{folder}")
+            for folder in _EXTRA_CONFIG_DIRS:  # less what cannot replace ours (utils/user_config.py)
+                search_path.append("command-line", f"file://{user_config_view(folder, CFG_DIR)}")
             users = [e for e in path if e.provider == "command-line"]
             rest = [e for e in path if e.provider != "command-line"]
             main = next(i for i, e in enumerate(rest) if e.provider == "main")

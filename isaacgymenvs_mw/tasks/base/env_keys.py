@@ -154,6 +154,15 @@ def warn_unused_ige_keys(env: dict) -> list[str]:
     return present
 
 
+def refuse_reward_scale(task: str, env: dict) -> None:
+    """``env.rewardScale`` moved to the learner recipe (IsaacGymEnvs' task YAMLs have no such key: its rl_games train
+    YAML scales the reward), so that an IsaacGymEnvs train YAML sees IsaacGymEnvs' reward and scales it once."""
+    if "rewardScale" in env:
+        raise ConfigError(f"{task}: env.rewardScale={env['rewardScale']} is no longer a task key: the learner recipe "
+                          "scales the reward (train.runner.reward_scale for rsl_rl, "
+                          "train.params.config.reward_shaper.scale_value for rl_games); remove it from the task YAML")
+
+
 def required(section: dict, key: str):
     """``env.<key>`` of the ``env`` section, which the task YAML must give."""
     if section.get(key) is None:
