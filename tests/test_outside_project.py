@@ -149,3 +149,26 @@ def test_pendulum_with_a_wrong_num_actions_fails_at_construction():
     with pytest.raises(ValueError, match=r"env\.numActions=3 but the model has 1 actuators.*hinge"):
         isaacgymenvs_mw.make("Pendulum", num_envs=2, sim_device="cpu", rl_device="cpu",
                              overrides=["task_module=examples.pendulum_task", "task.env.numActions=3"])
+
+
+def test_task_module_from_a_users_script_is_found_in_the_current_folder(tmp_path):
+    """A script elsewhere calling make(overrides=["task_module=examples.pendulum_task"]) from the repository's folder:
+    Python puts the script's folder on the path, not the current one, which task_module= looks in too (last); from
+    a folder without it, one line names where it looked."""
+    script = tmp_path / "my_script.py"
+    script.write_text("import isaacgymenvs_mw\n"
+                      "from isaacgymenvs_mw.utils.errors import ConfigError\n"
+                      "try:\n"
+                      "    t = isaacgymenvs_mw.make('Pendulum', num_envs=2, sim_device='cpu', rl_device='cpu',\n"
+                      "                             overrides=['task_module=examples.pendulum_task'])\n"
+                      "    print('built', type(t).__module__)\n"
+                      "except ConfigError as err:\n"
+                      "    print('error', err)\n")
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    found = subprocess.run([sys.executable, str(script)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=300,
+                           env=env)
+    assert "built examples.pendulum_task" in found.stdout, found.stdout + found.stderr[-2000:]
+    missing = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=300, env=env)
+    assert (f"error task_module='examples.pendulum_task': no module 'examples' in the script's folder ({tmp_path}), "
+            f"the current folder ({tmp_path}) or PYTHONPATH") in missing.stdout, missing.stdout + missing.stderr[-2000:]

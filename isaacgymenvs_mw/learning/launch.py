@@ -66,6 +66,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
                               "train (or max_iterations=N on the command line)")
         if not cfg.test and saved is not None:
             check_resume_total(max_iterations, {"iter": saved.get("iteration", saved.get("epoch", 0))}, cfg.checkpoint)
+    check_experiment_name(experiment)
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     run_dir = Path(cfg.runs_dir) / experiment / stamp
     is_main = rank == 0
@@ -131,6 +132,15 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     return summary
 
 
+def check_experiment_name(experiment: str) -> None:
+    """The run folder is ``runs_dir/<experiment>/<stamp>``: a name that leaves ``runs_dir`` (an absolute path, a
+    ``..``) would write it elsewhere, so it is refused."""
+    parts = Path(experiment).parts
+    if Path(experiment).is_absolute() or ".." in parts or not parts:
+        raise ConfigError(f"experiment={experiment!r} is invalid: give a name, or a relative folder path without "
+                          "'..', under runs_dir (runs_dir= picks where runs go)")
+
+
 def learner(cfg: DictConfig, task, train_cfg: dict | None) -> tuple[Callable[[], TrainingRun], str, int]:
     """The learner that trains ``task``: a function that makes its runner (with no log folder yet), the experiment
     name, and rl_games' ``max_epochs`` (-1 for rsl-rl-lib). ``train_cfg``: rsl-rl-lib's runner config (from
@@ -191,8 +201,12 @@ def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start: tuple
 def _report_end(summary: dict, runner: TrainingRun, run_dir: Path, interrupted: KeyboardInterrupt | None) -> None:
     write_json(run_dir / "summary.json", summary)
     ended = f"stopped by {summary['signal']} after" if interrupted is not None else "done in"
-    print(f"[train] {ended} {summary['wall_time_s']:.1f}s: mean_episode_length={summary['mean_episode_length']}, "
-          f"mean_episode_reward={summary['mean_episode_reward']}; summary {run_dir / 'summary.json'}", flush=True)
+    if summary["mean_episode_length"] is None:  # e.g. a resumed run that ended before any episode did
+        episodes = "no episode ended in this run"
+    else:
+        episodes = (f"mean_episode_length={summary['mean_episode_length']}, "
+                    f"mean_episode_reward={summary['mean_episode_reward']}")
+    print(f"[train] {ended} {summary['wall_time_s']:.1f}s: {episodes}; summary {run_dir / 'summary.json'}", flush=True)
     if runner.best is not None and runner.best.never_moved():
         print(runner.best.never_moved(), flush=True)
     if interrupted is None:

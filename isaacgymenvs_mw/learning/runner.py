@@ -36,8 +36,45 @@ def rsl_rl_config(train_cfg: dict) -> dict:
     for key in ("num_steps_per_env", "max_iterations", "save_interval", "obs_groups"):
         if key not in runner:
             raise ConfigError(f"train.runner.{key} is required")
+    for key, name in _class_names(train_cfg):
+        _check_class_name(key, name)
     return {**runner, "algorithm": dict(train_cfg["algorithm"]), "actor": dict(train_cfg["actor"]),
             "critic": dict(train_cfg["critic"])}
+
+
+def _class_names(train_cfg: dict) -> list[tuple[str, str]]:
+    """The train YAML's ``class_name`` keys as typed (``train.algorithm.class_name``, ...) and their values."""
+    found = []
+    for section in ("algorithm", "actor", "critic"):
+        node = train_cfg.get(section) or {}
+        if "class_name" in node:
+            found.append((f"train.{section}.class_name", node["class_name"]))
+        dist = node.get("distribution_cfg") or {}
+        if "class_name" in dist:
+            found.append((f"train.{section}.distribution_cfg.class_name", dist["class_name"]))
+    return found
+
+
+def _check_class_name(key: str, name: object) -> None:
+    """rsl-rl-lib resolves a class_name when it builds the runner, and a name it cannot find is its traceback: tell
+    it here in one line, with rsl-rl-lib's class names that are spelt alike."""
+    import difflib
+    import pkgutil
+
+    import rsl_rl
+    from rsl_rl.utils.utils import resolve_callable
+
+    try:
+        resolve_callable(name)
+        return
+    except (ValueError, ImportError, AttributeError, TypeError):
+        pass
+    known = sorted({attr for _, module, _ in pkgutil.iter_modules(rsl_rl.__path__, "rsl_rl.")
+                    for attr in dir(__import__(module, fromlist=["_"])) if attr[:1].isupper()})
+    close = difflib.get_close_matches(str(name), known, n=3)
+    hint = f" (did you mean {', '.join(close)}?)" if close else ""
+    raise ConfigError(f"{key}={name!r} names no class{hint}: give one of rsl-rl-lib's (PPO, MLPModel, ...) or "
+                      "module.path:ClassName")
 
 
 class Runner(OnPolicyRunner, TrainingRun):

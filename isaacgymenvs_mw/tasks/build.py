@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import os
+import sys
 import traceback
 
 import torch
@@ -23,17 +24,37 @@ from isaacgymenvs_mw.utils.errors import ConfigError, under_task
 
 
 def import_task_module(name: str) -> None:
-    """``task_module=``: import the module that registers the user's tasks, or say in one line why it cannot be."""
+    """``task_module=``: import the module that registers the user's tasks, or say in one line why it cannot be.
+
+    Python looks in the running script's folder (train.py's, or the user's script calling make()) and PYTHONPATH;
+    the current folder is looked in too, last, as a user running from their project's folder expects."""
     try:
-        importlib.import_module(name)
+        _import_with_cwd_last(name)
     except ModuleNotFoundError as err:
         missing = err.name or name
         if missing == name or name.startswith(f"{missing}."):  # the module itself (or its package) is not found
-            raise ConfigError(f"task_module={name!r}: no module {missing!r} on the Python path (the current folder "
-                              "and PYTHONPATH): run train.py from the folder that holds it, or add that folder to "
-                              "PYTHONPATH") from err
+            script = os.path.dirname(os.path.abspath(sys.argv[0])) if sys.argv and sys.argv[0] else None
+            where = f"the script's folder ({script}), " if script else ""
+            raise ConfigError(f"task_module={name!r}: no module {missing!r} in {where}the current folder "
+                              f"({os.getcwd()}) or PYTHONPATH: run from the folder that holds it, or add that "
+                              "folder to PYTHONPATH") from err
         raise ConfigError(f"task_module={name!r} imports {missing!r}, which is not installed: pip install it (or "
                           "fix the import)") from err
+
+
+def _import_with_cwd_last(name: str) -> None:
+    try:
+        importlib.import_module(name)
+        return
+    except ModuleNotFoundError as err:
+        top = name.split(".")[0]
+        if (err.name or name) not in (name, top) and not name.startswith(f"{err.name}."):
+            raise  # the module was found and imports something missing
+        cwd = os.getcwd()
+        if cwd in sys.path or "" in sys.path:
+            raise
+    sys.path.append(cwd)
+    importlib.import_module(name)
 
 
 def build_task(cfg: DictConfig) -> VecTask:
