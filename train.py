@@ -38,11 +38,12 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     from isaacgymenvs_mw.learning.train_config import check_before_start
-    from isaacgymenvs_mw.utils.config import check_task_yaml, record_task_dir
+    from isaacgymenvs_mw.utils.config import check_task_yaml, check_task_yaml_keys, record_task_dir
 
     with exit_on_input_error():
         check_task_yaml(cfg, HydraConfig.get())  # an empty task YAML, or one without name:, named by its path
         record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the YAML's folder
+        check_task_yaml_keys(cfg, HydraConfig.get())  # a misspelt key inside the task YAML, named with its file
         check_before_start(cfg)  # the run's keys and the train YAML, before the learning stack's 4 s of imports
         from isaacgymenvs_mw.learning.launch import run
 

@@ -20,7 +20,7 @@ from isaacgymenvs_mw.utils.files import atomic_save
 
 # An action whose noise std is below this while the KL-adaptive rate sits at its floor has collapsed: moving its mean
 # by 0.18 std (0.0018 here, under a thousandth of the [-1, 1] range) already spends a KL target of 0.016, so every
-# update stops there and the other actions barely learn (ShadowHand's wrist, H100, 2026-11-26).
+# update stops there and the other actions barely learn (ShadowHand's wrist on an H100).
 NOISE_COLLAPSE_STD = 0.01
 
 # Episode statistics that are counts of incidents, reported apart from the episodes' means.

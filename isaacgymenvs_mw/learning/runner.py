@@ -180,7 +180,7 @@ class Runner(OnPolicyRunner, TrainingRun):
     def _action_noise(self) -> dict[str, float]:
         """The policy's action noise as its parameters hold it after the update: the mean and the smallest standard
         deviation over the actions. The smallest is the one to watch: a few collapsed actions pin the KL-adaptive rate
-        at its floor (ShadowHand, H100, 2026-11-26). One small read; empty for a policy without a state-independent
+        at its floor (seen on ShadowHand). One small read; empty for a policy without a state-independent
         Gaussian (rsl-rl-lib's GaussianDistribution and ours keep ``std_param`` or ``log_std_param``)."""
         distribution = getattr(self.alg.get_policy(), "distribution", None)
         with torch.no_grad():
@@ -195,7 +195,7 @@ class Runner(OnPolicyRunner, TrainingRun):
 
     def _noise_lever(self) -> str:
         """The override to try first against a collapse: the noise learned as a log (on AllegroHand no action's noise
-        collapsed with it in two seeds, H200, 2026-11-26), or, for a policy that has it already, a floor."""
+        collapsed with it in two seeds), or, for a policy that has it already, a floor."""
         std_type = (self.cfg["actor"].get("distribution_cfg") or {}).get("std_type", "scalar")  # actor: checked
         if std_type == "log":
             return "+train.actor.distribution_cfg.std_range=[0.1,10.0]"

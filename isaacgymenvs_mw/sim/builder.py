@@ -155,7 +155,7 @@ class ModelRequest:
 
     @property
     def sensors(self) -> tuple[Sensor, ...]:
-        """``declared_sensors`` by its earlier name, which the contributor guide of 2026-11 taught
+        """``declared_sensors`` by its earlier name, which an earlier contributor guide taught
         (``request.sensors = (*request.sensors, BaseSpeed())``); kept so those tasks run unchanged."""
         return tuple(self.declared_sensors)
 
@@ -353,7 +353,7 @@ def _terrain_parts(spec: mujoco.MjSpec, terrain: Terrain) -> list[tuple[str, dic
 
     One heightfield per cell, not one for the map: MuJoCo Warp 4.0's heightfield collision loses precision with
     the distance from the heightfield's centre. On a 130 m x 210 m map, 5-10 % of foot spheres more than 20 m from
-    it got a contact metres deep at a wrong place, which blew the world up (measured 2026-11-23).
+    it got a contact metres deep at a wrong place, which blew the world up.
     Within a cell, no point is more than ~6 m from its heightfield's centre. MuJoCo stores heights normalised to
     [0, 1] times the elevation range, above the geom's z; rows run along y, columns along x.
     """

@@ -14,6 +14,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import MissingMandatoryValue
 
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError
+from isaacgymenvs_mw.utils.task_keys import check_task_keys
 from isaacgymenvs_mw.utils.user_config import user_config_view
 
 CFG_DIR = Path(__file__).resolve().parents[2] / "cfg"
@@ -138,6 +139,7 @@ def compose_config(overrides: Sequence[str] = (), config_dir: str | Path | None 
     finally:
         _EXTRA_CONFIG_DIRS.clear()
     record_task_dir(cfg, cfg.hydra)
+    check_task_yaml_keys(cfg, cfg.hydra)
     with open_dict(cfg):
         del cfg["hydra"]  # train.py's config has no hydra node either
     return cfg
@@ -159,6 +161,12 @@ def task_yaml_path(hydra_cfg: DictConfig) -> Path | None:
         if candidate.is_file():
             return candidate.resolve()
     return None
+
+
+def check_task_yaml_keys(cfg: DictConfig, hydra_cfg: DictConfig) -> None:
+    """Likely typos among the task YAML's keys, named with the file (utils/task_keys.py)."""
+    if "task" in cfg and isinstance(cfg.task, DictConfig):
+        check_task_keys(OmegaConf.to_container(cfg.task, resolve=False), task_yaml_path(hydra_cfg), CFG_DIR)
 
 
 def record_task_dir(cfg: DictConfig, hydra_cfg: DictConfig) -> None:

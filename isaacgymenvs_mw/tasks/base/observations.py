@@ -1,4 +1,4 @@
-"""The observation terms' earlier home, kept so task projects written against the docs of 2026-11 import unchanged
+"""The observation terms' earlier home, kept so task projects written against the earlier docs import unchanged
 (``from isaacgymenvs_mw.tasks.base.observations import ObsTerm``). The terms live in ``observation_terms.py``;
 ``Observations``, which composes them into groups, in ``observation_composer.py``. New code imports from there."""
 
