@@ -19,6 +19,7 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
+from isaacgymenvs_mw.sim.asset_parse import parse_asset
 from isaacgymenvs_mw.sim.cameras import CameraSpec
 from isaacgymenvs_mw.sim.geom_contacts import GeomContact, add_average_friction_pairs, set_geom_contacts
 from isaacgymenvs_mw.sim.names import compile_pattern, name_matches, no_match_error
@@ -178,7 +179,7 @@ def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "
             f"Asset file not found: '{asset_file}'. Set {key}.assetRoot / {key}.assetFileName in the task "
             "YAML to an existing URDF or MJCF file."
         )
-    spec = mujoco.MjSpec.from_file(str(asset_file))
+    spec = parse_asset(asset_file, key)  # a file MuJoCo refuses is one line; URDF joints with lower == upper locked
     spec.compiler.fusestatic = bool(collapse_fixed_joints)
     return spec
 

@@ -1,0 +1,60 @@
+"""Parsing asset files (sim/asset_parse.py): a URDF joint with lower == upper is locked, as IsaacGym treats it (MuJoCo's
+URDF importer alone leaves it free), and a file MuJoCo's parser refuses is one line naming the file."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from isaacgymenvs_mw.sim.builder import load_spec
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+INERTIAL = ('<inertial><origin xyz="0.2 0 0"/><mass value="1"/>'
+            '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>')
+
+
+def _urdf(lower: float, upper: float) -> str:
+    """A base on a hinge about z and an arm on a hinge about y with the given limits: gravity swings the arm unless
+    its joint is locked."""
+    return f'''<robot name="lock">
+  <link name="world"/>
+  <link name="base">{INERTIAL}</link>
+  <link name="arm">{INERTIAL}</link>
+  <joint name="to_base" type="fixed"><parent link="world"/><child link="base"/></joint>
+  <joint name="elbow" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0.1 0 1"/>
+    <axis xyz="0 1 0"/><limit lower="{lower}" upper="{upper}" effort="1" velocity="1"/></joint>
+</robot>'''
+
+
+def _arm_drop(tmp_path, lower, upper) -> tuple[list[str], float]:
+    path = tmp_path / "lock.urdf"
+    path.write_text(_urdf(lower, upper))
+    spec = load_spec(path, collapse_fixed_joints=False)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start = data.xipos[model.body("arm").id].copy()
+    for _ in range(200):
+        mujoco.mj_step(model, data)
+    return [j.name for j in spec.joints], float(np.linalg.norm(data.xipos[model.body("arm").id] - start))
+
+
+def test_a_urdf_joint_with_equal_limits_is_locked(tmp_path):
+    joints, moved = _arm_drop(tmp_path, 0.0, 0.0)
+    assert joints == [] and moved < 1e-9  # welded: gravity does not swing the arm
+
+
+def test_a_urdf_joint_with_a_range_stays_a_joint(tmp_path):
+    joints, moved = _arm_drop(tmp_path, -1.5, 1.5)
+    assert joints == ["elbow"] and moved > 0.01  # the same arm swings under gravity
+
+
+def test_a_file_mujoco_cannot_parse_is_one_line(tmp_path):
+    bad = tmp_path / "bad.xml"
+    bad.write_text("<mujoco><worldbody><bodyy/></worldbody></mujoco>")
+    with pytest.raises(ConfigError) as err:
+        load_spec(bad)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(f"env.asset: MuJoCo cannot load '{bad}': ")
+    assert message.endswith("(fix the file, or give another with env.asset.assetFileName)")
