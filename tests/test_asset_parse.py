@@ -58,3 +58,34 @@ def test_a_file_mujoco_cannot_parse_is_one_line(tmp_path):
     message = str(err.value)
     assert "\n" not in message and message.startswith(f"env.asset: MuJoCo cannot load '{bad}': ")
     assert message.endswith("(fix the file, or give another with env.asset.assetFileName)")
+
+
+@pytest.mark.parametrize("xml, phrase, hint", [
+    ('<mujoco><worldbody><body><joint name="a"/><joint name="a"/><geom size=".1"/></body></worldbody></mujoco>',
+     "repeated name 'a' in joint", "give each element its own name in the asset"),
+])
+def test_a_repeated_name_is_one_line_with_what_to_do(tmp_path, xml, phrase, hint):
+    path = tmp_path / "dup.xml"
+    path.write_text(xml)
+    with pytest.raises(ConfigError) as err:
+        load_spec(path)
+    message = str(err.value)
+    assert "\n" not in message and phrase in message and message.endswith(f"({hint})")
+
+
+@pytest.mark.parametrize("xml, phrase, hint", [
+    # a root body with its own joints beside a free joint (what a floating base adds to such an asset)
+    ('<mujoco><worldbody><body><freejoint/><joint type="hinge"/><geom size=".1"/></body></worldbody></mujoco>',
+     "more than 6 dofs in body", "set env.asset.fixBaseLink: True or remove them"),
+    ('<mujoco><asset><mesh name="m" file="{tmp}/nope.stl"/></asset><worldbody><body><geom type="mesh" mesh="m"/>'
+     '</body></worldbody></mujoco>', "nope.stl", "a path in the asset is relative to the asset's folder"),
+])
+def test_mujoco_compile_errors_are_one_line_naming_the_asset(tmp_path, xml, phrase, hint):
+    from isaacgymenvs_mw.sim.asset_parse import compile_error
+
+    spec = mujoco.MjSpec.from_string(xml.replace("{tmp}", str(tmp_path)))
+    with pytest.raises(ValueError) as raised:
+        spec.compile()
+    message = str(compile_error(raised.value, tmp_path / "robot.xml"))
+    assert "\n" not in message and message.startswith(f"MuJoCo cannot compile the model of '{tmp_path / 'robot.xml'}'")
+    assert phrase in message and hint in message

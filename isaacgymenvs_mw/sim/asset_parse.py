@@ -50,10 +50,33 @@ def parse_asset(asset_file: Path, key: str) -> mujoco.MjSpec:
     """``asset_file`` as a spec (MJCF by its .xml extension, else URDF); ``key``: the YAML section naming it."""
     try:
         spec = mujoco.MjSpec.from_file(str(asset_file))
-    except ValueError as err:  # MuJoCo's parser: a bad attribute, an unknown element, a file it cannot decode
-        first = (str(err).strip() or "parse error").splitlines()[0]
-        raise ConfigError(f"{key}: MuJoCo cannot load '{asset_file}': {first} (fix the file, or give another with "
-                          f"{key}.assetFileName)") from err
+    except ValueError as err:  # MuJoCo's parser: a bad attribute, an unknown element, a repeated name, ...
+        said, hint = _said_and_hint(err, f"fix the file, or give another with {key}.assetFileName")
+        raise ConfigError(f"{key}: MuJoCo cannot load '{asset_file}': {said} ({hint})") from err
     if Path(asset_file).suffix.lower() != ".xml":
         lock_joints(spec, locked_urdf_joints(Path(asset_file)))
     return spec
+
+
+# What to do about the MuJoCo errors a port meets most, by a phrase of MuJoCo's message.
+_HINTS = {
+    "repeated name": "give each element its own name in the asset",
+    "more than 6 dofs": "the framework gives a floating base (env.asset.fixBaseLink: False) its free joint, so the "
+                        "root body must have no joints of its own: set env.asset.fixBaseLink: True or remove them",
+    "opening file": "check that the file exists: a path in the asset is relative to the asset's folder (or its "
+                    "meshdir)",
+    "mesh": "check that the mesh file is one MuJoCo reads (STL, OBJ, MSH) and not empty",
+}
+
+
+def _said_and_hint(err: ValueError, default_hint: str) -> tuple[str, str]:
+    """MuJoCo's message on one line (its first two lines: what, and which element), and what to do about it."""
+    lines = [line.strip() for line in str(err).strip().splitlines() if line.strip()]
+    said = "; ".join(lines[:2]) or type(err).__name__
+    return said, next((h for phrase, h in _HINTS.items() if phrase in said.lower()), default_hint)
+
+
+def compile_error(err: ValueError, asset_file: Path | str) -> ConfigError:
+    """MuJoCo's compile error of the model built from ``asset_file`` as one line: its message, and what to do."""
+    said, hint = _said_and_hint(err, "fix the asset")
+    return ConfigError(f"MuJoCo cannot compile the model of '{asset_file}': {said} ({hint})")

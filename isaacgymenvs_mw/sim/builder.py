@@ -19,7 +19,7 @@ from typing import Mapping, Sequence
 import mujoco
 import numpy as np
 
-from isaacgymenvs_mw.sim.asset_parse import parse_asset
+from isaacgymenvs_mw.sim.asset_parse import compile_error, parse_asset
 from isaacgymenvs_mw.sim.cameras import CameraSpec
 from isaacgymenvs_mw.sim.geom_contacts import GeomContact, add_average_friction_pairs, set_geom_contacts
 from isaacgymenvs_mw.sim.names import compile_pattern, name_matches, no_match_error
@@ -338,7 +338,10 @@ def build_model(request: ModelRequest) -> mujoco.MjModel:
         sensor.add_to(spec)
 
     _apply_options(spec, request.options)
-    model = spec.compile()
+    try:
+        model = spec.compile()
+    except ValueError as err:  # one line naming the asset: a repeated name, a root with joints, a mesh, ...
+        raise compile_error(err, request.asset_file) from err
     # Here, where the timestep, the inertias and the constraints are final: a drive too stiff for them (alone, or
     # coupled to others through a closed chain) blows up every world.
     warn_unstable_drives(model, {j for j, d in request.drives.items() if d.mode == "position"},
