@@ -110,3 +110,31 @@ def test_a_run_on_a_disk_that_fills_ends_with_one_line_and_a_whole_checkpoint(tm
     assert names == ["config.yaml", "model_1.pt", "model_best.pt"], names
     assert torch.load(run_dir / "model_1.pt", weights_only=False)["iter"] == 1
     assert latest_checkpoint(run_dir.glob("model_*.pt")) == run_dir / "model_1.pt"
+
+
+@pytest.mark.parametrize("raised, names", [
+    (OSError(errno.ENOSPC, NO_SPACE, "/data/runs/sweeps/Ant_1/sweep.json"), "cannot write sweep.json in "
+                                                                             "/data/runs/sweeps/Ant_1 "),
+    (OSError(errno.EDQUOT, os.strerror(errno.EDQUOT), "/data/runs/Ant/2026-11-29"), "cannot write 2026-11-29 in "
+                                                                                    "/data/runs/Ant "),
+    (RuntimeError(f"unexpected pos 64 vs 0: {NO_SPACE}"), f"a write failed ({NO_SPACE}): "),
+])
+def test_a_disk_error_from_a_write_nothing_guards_is_one_line_and_exit_74(raised, names, capsys, monkeypatch):
+    from isaacgymenvs_mw.utils.cli_errors import exit_on_input_error
+
+    monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
+    with pytest.raises(SystemExit) as stop:
+        with exit_on_input_error("sweep"):
+            raise raised
+    assert stop.value.code == DISK_ERROR_STATUS
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"[sweep] error: {names}"), line
+    assert "runs_dir" in line
+
+
+def test_an_error_that_is_not_the_disk_is_left_alone(capsys):
+    from isaacgymenvs_mw.utils.cli_errors import exit_on_input_error
+
+    with pytest.raises(OSError, match="Permission denied"):
+        with exit_on_input_error("train"):
+            raise OSError(errno.EACCES, "Permission denied", "/root/x")

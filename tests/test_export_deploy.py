@@ -8,7 +8,9 @@ out here by hand), MuJoCo compiling the URDF on its own (joint order), importlib
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import shutil
 import sys
 from importlib import metadata
@@ -21,11 +23,12 @@ from omegaconf import OmegaConf
 
 import isaacgymenvs_mw
 from conftest import CPU_ARGS, REPO_ROOT
-from isaacgymenvs_mw.learning import export
 from isaacgymenvs_mw.learning.export import export_policy, read_metadata
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.utils import files
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
+from isaacgymenvs_mw.utils.files import DiskWriteError
 
 sys.path.insert(0, str(REPO_ROOT / "examples"))
 import deploy_mujoco  # noqa: E402
@@ -178,21 +181,34 @@ def test_deploy_example_runs_and_reports_tracking_error(exported):
     assert result["min_base_height"] > 0.1  # started standing on the floor
 
 
-def test_an_export_that_fails_midway_leaves_the_previous_one_whole(exported, tmp_path, monkeypatch):
+def test_an_export_on_a_disk_that_fills_midway_is_one_line_and_leaves_the_previous_one_whole(exported, tmp_path,
+                                                                                             monkeypatch):
     task, _, runner, out = exported
     target = tmp_path / "exported"
     shutil.copytree(out, target)
     before = {p.name: p.read_bytes() for p in target.iterdir()}
+    real_write, calls = files._write_bytes, []
 
-    def fail_after_one_file(runner, staging, task):
-        (staging / "policy.onnx").write_bytes(b"half an onnx file")
-        raise RuntimeError("disk full")
+    def fills_on_the_second_file(path, data):
+        calls.append(path.name)
+        if len(calls) == 2:  # half of it reaches the disk, then the disk is full
+            path.write_bytes(data[: len(data) // 2])
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real_write(path, data)
 
-    monkeypatch.setattr(export, "_write_policy_files", fail_after_one_file)
-    with pytest.raises(RuntimeError, match="disk full"):
+    monkeypatch.setattr(files, "_write_bytes", fills_on_the_second_file)
+    with pytest.raises(DiskWriteError) as err:
         export_policy(runner, target, task=task)
-    assert {p.name: p.read_bytes() for p in target.iterdir()} == before
-    assert [p.name for p in tmp_path.iterdir()] == ["exported"]  # its private folder is gone too
+    assert "\n" not in str(err.value)
+    assert str(err.value).startswith(f"cannot write policy.pt in {target} ({os.strerror(errno.ENOSPC)}; "), err.value
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == before  # no new file in, no hidden file left
+    assert [p.name for p in tmp_path.iterdir()] == ["exported"]  # and no private folder beside it
+
+
+def test_exported_model_mjb_is_the_model_mujoco_saves(exported, tmp_path):
+    task, *_, out = exported
+    task.sim.save_model(str(tmp_path / "by_mujoco.mjb"))  # MuJoCo's own file writer
+    assert (out / "model.mjb").read_bytes() == (tmp_path / "by_mujoco.mjb").read_bytes()
 
 
 def test_plain_task_policy_json_names_the_actuators_in_action_order(tmp_path):

@@ -12,10 +12,8 @@ robot runtime needs (docs/deploy.md).
 
 from __future__ import annotations
 
+import io
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +22,7 @@ from rsl_rl.runners import OnPolicyRunner
 
 from isaacgymenvs_mw._version import __version__
 from isaacgymenvs_mw.learning.reporting import package_versions
-from isaacgymenvs_mw.utils.files import disk_errors_named
+from isaacgymenvs_mw.utils.files import save_files_whole
 
 METADATA_FILE = "metadata.json"  # name of the TorchScript extra file
 
@@ -46,25 +44,17 @@ def policy_metadata(task) -> dict[str, Any]:
 def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Path, Path]:
     """Write ``policy.onnx`` and ``policy.pt`` (and, given the task, their metadata and ``model.mjb``).
 
-    Both map raw observations, as the task returns them (history stacked), to the deterministic (mean) action. The
-    files are written in a private folder beside ``out_dir`` and then moved in, so a file in ``out_dir`` is always
-    whole, also while another process exports into it.
+    Both map raw observations, as the task returns them (history stacked), to the deterministic (mean) action. Every
+    file is made in memory first and the set is then written as one unit (``save_files_whole``): a full disk is one
+    line naming the folder, and the files already in ``out_dir`` stay as they were, with nothing partial beside them.
     """
     out_dir = Path(out_dir)
-    with disk_errors_named(out_dir / "policy.onnx"):  # a full disk: one line naming the folder, no traceback
-        out_dir.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-        try:
-            _write_policy_files(runner, staging, task)
-            for written in sorted(staging.iterdir()):
-                os.replace(written, out_dir / written.name)
-        finally:
-            shutil.rmtree(staging, ignore_errors=True)
+    save_files_whole(out_dir, policy_files(runner, task))
     return out_dir / "policy.onnx", out_dir / "policy.pt"
 
 
-def _write_policy_files(runner: OnPolicyRunner, out_dir: Path, task) -> None:
-    onnx_path, jit_path = out_dir / "policy.onnx", out_dir / "policy.pt"
+def policy_files(runner: OnPolicyRunner, task=None) -> dict[str, bytes]:
+    """The exported files by name, as bytes: no library writes to the disk itself, so none can abort on a full one."""
     policy_module = getattr(runner, "policy_module", None)  # a runner of another learner (rl_games) gives its own
     if policy_module is not None:
         model = policy_module().to("cpu").eval()  # a copy: the runner's own stays where it is
@@ -72,35 +62,38 @@ def _write_policy_files(runner: OnPolicyRunner, out_dir: Path, task) -> None:
         model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
     # An image policy (learning/models.py) has one more input per image group, named after it ("camera").
     inputs = list(getattr(model, "input_names", ["obs"]))
+    onnx_buffer = io.BytesIO()
     with torch.no_grad():
         torch.onnx.export(
-            model, model.get_dummy_inputs(), str(onnx_path), input_names=inputs, output_names=["actions"],
+            model, model.get_dummy_inputs(), onnx_buffer, input_names=inputs, output_names=["actions"],
             dynamic_axes={name: {0: "batch"} for name in [*inputs, "actions"]}, opset_version=18, dynamo=False,
         )
-    if policy_module is not None:
-        with torch.no_grad():
-            torch.jit.trace(model, model.get_dummy_inputs()).save(str(jit_path))
-    else:
-        runner.export_policy_to_jit(str(out_dir), filename=jit_path.name)
+        if policy_module is not None:
+            jit = torch.jit.trace(model, model.get_dummy_inputs())
+        else:
+            jit = torch.jit.script(runner.alg.get_policy().as_jit().to("cpu").eval())
+    metadata = policy_metadata(task) if task is not None else None
+    text = json.dumps(metadata, indent=2) if metadata is not None else None
+    jit_buffer = io.BytesIO()
+    torch.jit.save(jit, jit_buffer, _extra_files={METADATA_FILE: text} if text is not None else None)
+    files = {"policy.onnx": _with_onnx_metadata(onnx_buffer.getvalue(), metadata), "policy.pt": jit_buffer.getvalue()}
     if task is not None:
-        metadata = policy_metadata(task)
-        text = json.dumps(metadata, indent=2)
-        (out_dir / "policy.json").write_text(text + "\n")
-        _add_onnx_metadata(onnx_path, metadata)
-        jit = torch.jit.load(str(jit_path), map_location="cpu")
-        torch.jit.save(jit, str(jit_path), _extra_files={METADATA_FILE: text})
-        task.sim.save_model(str(out_dir / "model.mjb"))
+        files["policy.json"] = (text + "\n").encode()
+        files["model.mjb"] = task.sim.model_bytes()
+    return files
 
 
-def _add_onnx_metadata(path: Path, metadata: dict[str, Any]) -> None:
+def _with_onnx_metadata(model: bytes, metadata: dict[str, Any] | None) -> bytes:
+    if metadata is None:
+        return model
     import onnx  # installed with torch's ONNX exporter (onnxscript)
 
-    proto = onnx.load(str(path))
+    proto = onnx.load_from_string(model)
     del proto.metadata_props[:]
     for key, value in metadata.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, json.dumps(value)
-    onnx.save(proto, str(path))
+    return proto.SerializeToString()
 
 
 def read_metadata(path: Path) -> dict[str, Any]:

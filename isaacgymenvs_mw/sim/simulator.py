@@ -181,3 +181,9 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         trained on: actuators (PD gains), solver options, contact sensors and the floor included.
         """
         mujoco.mj_saveModel(self.mj_model, str(path), None)
+
+    def model_bytes(self) -> bytes:
+        """The same ``.mjb`` as ``save_model``, in memory (the caller decides how it reaches the disk)."""
+        buffer = np.zeros(mujoco.mj_sizeModel(self.mj_model), dtype=np.uint8)
+        mujoco.mj_saveModel(self.mj_model, None, buffer)
+        return buffer.tobytes()

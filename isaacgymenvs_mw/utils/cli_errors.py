@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from isaacgymenvs_mw.utils.errors import ConfigError, one_line
-from isaacgymenvs_mw.utils.files import DISK_ERROR_STATUS, DiskWriteError
+from isaacgymenvs_mw.utils.files import DISK_ERROR_STATUS, DiskWriteError, unnamed_disk_error
 
 INPUT_ERROR_STATUS = 2  # as argparse and most Unix tools: the command line was wrong, nothing ran
 
@@ -101,6 +101,10 @@ def exit_on_input_error(command: str = "train") -> Iterator[None]:
         print(f"[{command}] error: {err}", file=sys.stderr, flush=True)
         sys.exit(DISK_ERROR_STATUS)
     except Exception as err:
+        disk = unnamed_disk_error(err)
+        if disk is not None and not traceback_wanted():
+            print(f"[{command}] error: {disk}", file=sys.stderr, flush=True)
+            sys.exit(DISK_ERROR_STATUS)
         message = input_error_message(err)
         if message is None or traceback_wanted():
             raise

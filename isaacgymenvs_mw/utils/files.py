@@ -62,6 +62,19 @@ def disk_errno(err: BaseException | None) -> int | None:
     return None
 
 
+def unnamed_disk_error(err: BaseException) -> DiskWriteError | None:
+    """A disk error raised by a write no ``disk_errors_named`` guards (a library's own file, a folder being made),
+    told as one line naming the file when the error knows it; None when ``err`` is not the disk's fault."""
+    code = disk_errno(err)
+    if code is None:
+        return None
+    filename = getattr(err, "filename", None)
+    if filename:
+        return disk_error(filename, code)
+    return DiskWriteError(code, f"a write failed ({os.strerror(code)}): free space where the run writes "
+                                f"(runs_dir) or give another runs_dir")
+
+
 @contextmanager
 def disk_errors_named(path: str | os.PathLike) -> Iterator[None]:
     """Inside, an error raised by the disk while writing ``path`` becomes a one-line ``DiskWriteError``."""
@@ -74,6 +87,37 @@ def disk_errors_named(path: str | os.PathLike) -> Iterator[None]:
         if code is None:
             raise
         raise disk_error(path, code) from err
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())  # a full disk can first show at the flush to the device
+
+
+def save_files_whole(folder: str | os.PathLike, contents: dict[str, bytes]) -> None:
+    """Write a set of files (name -> bytes) into ``folder`` as one unit: every file is written to a hidden name
+    first and only then are all renamed in; on failure none of them is changed (earlier files stay as they were),
+    no hidden file is left, and a disk error becomes a ``DiskWriteError`` naming the file it stopped at."""
+    folder = Path(folder)
+    written: list[tuple[Path, Path]] = []
+    name = next(iter(contents), "")
+    try:
+        with disk_errors_named(folder / name):
+            folder.mkdir(parents=True, exist_ok=True)
+        for name, data in contents.items():
+            target = folder / name
+            partial = folder / f".{name}.{os.getpid()}.partial"
+            written.append((partial, target))
+            with disk_errors_named(target):
+                _write_bytes(partial, data)
+        for partial, target in written:
+            os.replace(partial, target)  # renames take no space: once here, the set completes
+    except BaseException:
+        for partial, _ in written:
+            partial.unlink(missing_ok=True)
+        raise
 
 
 def atomic_save(path: str | os.PathLike, writer: Callable[[str], object]) -> None:
