@@ -132,3 +132,29 @@ def test_the_episode_clock_is_vectasks_and_reset_idx_only_places(make_cartpole):
     assert torch.equal(task.progress_buf, before["progress"])  # placed, but the clock runs on
     task.reset_envs(chosen)
     assert torch.equal(task.progress_buf, torch.where(chosen, 0, before["progress"]))
+
+
+@pytest.mark.parametrize("how", ["reset", "reset_done"])
+def test_reset_runs_after_reset_as_a_step_reset_does_before_the_observation(make_cartpole, how):
+    # A port that draws its targets in after_reset (as IsaacGymEnvs-style tasks do per step) has them from step 0.
+    task = make_cartpole(N)
+    prepare(task)
+    chosen = torch.tensor([1, 0, 1, 1, 0, 0, 0, 1], dtype=torch.bool)
+    seen = []
+
+    def after_reset(new_episode):
+        seen.append((new_episode.clone(), task.progress_buf.clone()))
+        cart = torch.full((N, 2), 0.0)
+        cart[:, 0] = 0.07  # a placement the observation must show
+        task.sim.write_state(new_episode, dof_pos=cart, dof_vel=torch.zeros(N, 2))
+
+    task.after_reset = after_reset
+    if how == "reset":
+        obs, expect = task.reset(), torch.ones(N, dtype=torch.bool)
+    else:
+        task.reset_buf[:] = chosen.long()
+        (obs, _), expect = task.reset_done(), chosen
+    ((mask, progress),) = seen
+    assert torch.equal(mask, expect)
+    assert torch.all(progress[expect] == 0)  # after the episode restarted
+    np.testing.assert_array_equal(obs["obs"][expect, 0].numpy(), np.float32(0.07))

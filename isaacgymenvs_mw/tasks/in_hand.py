@@ -241,8 +241,10 @@ class InHandTask(VecTask):
         return fell
 
     def after_reset(self, new_episode: torch.Tensor) -> None:
-        # A success in a running episode: a new goal orientation, seen in this step's observation.
-        self._new_goals(self.terms["reached"] & ~new_episode)
+        # A success in a running episode: a new goal orientation, seen in this step's observation. (At reset(),
+        # before any step, no episode is running: nothing to do.)
+        if self.terms:
+            self._new_goals(self.terms["reached"] & ~new_episode)
 
     # ------------------------------------------------------------------ observation
     def observation_terms(self) -> list[ObsTerm]:

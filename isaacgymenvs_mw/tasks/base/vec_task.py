@@ -266,7 +266,9 @@ class VecTask(IGESurface):
         and restarts the episode clock (``progress_buf``) afterwards."""
 
     def after_reset(self, new_episode: torch.Tensor) -> None:
-        """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands)."""
+        """Per-step work that must see this step's new episodes, before the observation (e.g. timed commands). Runs
+        after every reset, ``reset()`` and ``reset_done()`` included (there every env of ``new_episode`` is new and
+        the step's own quantities, from ``refresh_state``, may not exist yet)."""
 
     def check_action_size(self) -> None:
         """``env.numActions`` must equal the model's actuator count, checked at construction. A task whose actions
@@ -353,6 +355,7 @@ class VecTask(IGESurface):
         through the step's own render phase, and ``new_episode`` envs forget their past frames."""
         self.metrics.begin_step()
         self.reset_envs(new_episode)
+        self.after_reset(new_episode)  # the same reset path as a step's: what a task draws there is set from step 0
         self.sim.sense()
         observe()
         self.randomizer.observations(self.obs_buf)
