@@ -89,3 +89,36 @@ def test_mujoco_compile_errors_are_one_line_naming_the_asset(tmp_path, xml, phra
     message = str(compile_error(raised.value, tmp_path / "robot.xml"))
     assert "\n" not in message and message.startswith(f"MuJoCo cannot compile the model of '{tmp_path / 'robot.xml'}'")
     assert phrase in message and hint in message
+
+
+def _cartpole_with_tip(tmp_path, collapse: bool):
+    """The repository's cart-pole URDF plus a link on a fixed joint at the pole's top, as a port's marker body."""
+    import isaacgymenvs_mw
+    from conftest import REPO_ROOT
+
+    text = (REPO_ROOT / "assets" / "urdf" / "cartpole.urdf").read_text()
+    tip = ('<link name="pole_tip"><inertial><mass value="0.01"/><inertia ixx="1e-5" iyy="1e-5" izz="1e-5" ixy="0" '
+           'ixz="0" iyz="0"/></inertial></link><joint name="pole_to_tip" type="fixed"><parent link="pole"/>'
+           '<child link="pole_tip"/><origin xyz="0 0 1"/></joint></robot>')
+    (tmp_path / "tip.urdf").write_text(text.replace("</robot>", tip))
+    overrides = [f"task.env.asset.assetRoot={tmp_path}", "task.env.asset.assetFileName=tip.urdf",
+                 f"task.env.asset.collapseFixedJoints={collapse}"]
+    return isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", overrides=overrides)
+
+
+def test_a_body_that_collapse_fixed_joints_merged_is_named_with_the_setting(tmp_path):
+    import torch
+
+    task = _cartpole_with_tip(tmp_path, collapse=True)
+    with pytest.raises(ValueError) as err:
+        task.apply_body_forces(torch.zeros(2, 1, 3), bodies=["pole_tip"])
+    message = str(err.value)
+    assert "\n" not in message
+    assert message.startswith("bodies: body 'pole_tip' was merged into 'pole' by "
+                              "task.env.asset.collapseFixedJoints=True"), message
+    with pytest.raises(ValueError, match=r"^bodies: no body named 'pole_top'; valid: "):  # a plain typo stays plain
+        task.apply_body_forces(torch.zeros(2, 1, 3), bodies=["pole_top"])
+    # with the setting off the body is there, and a force on it is taken
+    kept = _cartpole_with_tip(tmp_path, collapse=False)
+    assert "pole_tip" in kept.sim.body_names and not kept.sim.fused_bodies
+    kept.apply_body_forces(torch.zeros(2, 1, 3), bodies=["pole_tip"])

@@ -1,6 +1,6 @@
 """Lookups on the compiled model: indices of bodies, geoms, sites and mocap bodies by name, joint limits and PD
 gains. ``Lookups`` is a part of ``Simulator`` (sim/simulator.py), which sets ``mj_model``, ``device``,
-``body_names``, ``dof_names`` and the id cache ``_body_id_cache``.
+``body_names``, ``dof_names``, ``fused_bodies`` and the id cache ``_body_id_cache``.
 """
 
 from __future__ import annotations
@@ -61,11 +61,19 @@ class Lookups:
     def _body_index(self, body: str | int) -> int:
         if isinstance(body, str):
             if body not in self.body_names:
-                raise ValueError(f"bodies: no body named {body!r}; valid: {self.body_names}")
+                raise ValueError(f"bodies: {self._missing_body(body)}; valid: {self.body_names}")
             return self.body_names.index(body)
         if not 0 <= int(body) < len(self.body_names):
             raise ValueError(f"bodies: index {body} is out of range; valid: 0..{len(self.body_names) - 1}")
         return int(body)
+
+    def _missing_body(self, name: str) -> str:
+        """Why there is no body ``name``: the asset names none, or collapseFixedJoints merged it into a parent."""
+        into = self.fused_bodies.get(name)
+        if into is None:
+            return f"no body named {name!r}"
+        return (f"body {name!r} was merged into {into!r} by task.env.asset.collapseFixedJoints=True (a fixed joint "
+                f"joins them): set it False to keep {name!r}, or name {into!r}")
 
     def site_id(self, name: str) -> int:
         """The model index of the site ``name`` (a column of ``site_xpos`` / ``site_xmat``)."""
@@ -85,5 +93,5 @@ class Lookups:
 
     def body_id(self, name: str) -> int:
         if name not in self.body_names:
-            raise KeyError(f"no body named '{name}'; bodies: {self.body_names}")
+            raise KeyError(f"{self._missing_body(name)}; bodies: {self.body_names}")
         return self.body_names.index(name)

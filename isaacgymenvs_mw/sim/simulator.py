@@ -121,6 +121,8 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         self.torque_speed: TorqueSpeedLimit | None = self._torque_speed_limit(torque_speed) if torque_speed else None
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
+        # {body of the asset file: the body collapseFixedJoints merged it into}, for the error naming one (lookups)
+        self.fused_bodies: dict[str, str] = {}
         self.physics_steps = 0  # total mjw.step calls per world, for tests and benchmarks
         # The sensors' owner: it binds each to a context of what sensors read and keeps the sense and render lists.
         context = SensorContext(mj_model, self.model, self.data, self.device, self.num_worlds, self.sensordata,

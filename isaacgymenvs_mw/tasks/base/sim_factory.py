@@ -26,7 +26,7 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
     """The Simulator of ``request``: ``num_envs`` worlds on ``device``, ``substeps`` physics steps per env step, the
     ``per_world_fields`` batched (the task's and the randomised quantities'), the YAML's ``sim`` sizes and options."""
     sim = cfg.get("sim", {})
-    return Simulator(
+    simulator = Simulator(
         build_model(request),
         num_worlds=num_envs,
         device=device,
@@ -39,3 +39,22 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
         declared_sensors=request.all_sensors(),
         torque_speed=request.torque_speed,
     )
+    if request.collapse_fixed_joints:
+        simulator.fused_bodies = fused_bodies(request, simulator.body_names)
+    return simulator
+
+
+def fused_bodies(request: ModelRequest, compiled: list[str]) -> dict[str, str]:
+    """{body of the asset file: the body it was merged into} for the bodies that collapseFixedJoints (MuJoCo's
+    fusestatic) joined to a parent through a fixed joint, so that naming one can say why it is gone."""
+    spec = request.spec  # parsed once by request_from_config; a request built by hand may have none
+    if spec is None:
+        return {}
+    kept, out = set(compiled), {}
+    for body in spec.bodies:
+        if body.name and body.name not in kept:
+            parent = body.parent
+            while parent is not None and parent.name not in kept and parent.name != "world":
+                parent = parent.parent
+            out[body.name] = parent.name if parent is not None else "world"
+    return out
