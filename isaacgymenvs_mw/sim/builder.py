@@ -98,6 +98,7 @@ class SceneAsset:
     # asset, the ground and the other objects).
     keep_asset_contacts: bool = False
     spec: "mujoco.MjSpec | None" = None  # the parsed file (sim/request.py parses it once); None: parse asset_file
+    max_angular_velocity: float | None = None  # rad/s cap on its free body's angular speed (sim/velocity_limit.py)
 
 
 @dataclass
@@ -148,6 +149,15 @@ class ModelRequest:
     # {joint: (saturation torque, torque limit, no-load speed)}: the DC-motor limit of the joint's drive
     # (env.control.torqueSpeed, sim/actuators.py), applied by the Simulator built with it (``Simulator(torque_speed=)``).
     torque_speed: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    # rad/s cap on the angular speed of the main asset's free bodies (env.asset.maxAngularVelocity; None: none)
+    max_angular_velocity: float | None = None
+
+    def angular_speed_caps(self) -> dict[str, float]:
+        """{asset name prefix ('' for the main asset): rad/s} of the assets that cap their free bodies' angular
+        speed (``sim.velocity_limit.free_joint_speed_limits`` finds their joints in the compiled model)."""
+        caps = {"": self.max_angular_velocity} if self.max_angular_velocity is not None else {}
+        caps.update({a.prefix: a.max_angular_velocity for a in self.assets if a.max_angular_velocity is not None})
+        return caps
 
     def body_names(self) -> list[str]:
         """Body names of the main asset as parsed (world body first), before fixed joints are collapsed."""

@@ -2,7 +2,7 @@
 step, a forward pass, a kinematics refresh, a camera render) captured once as a CUDA graph and replayed.
 
 ``GraphEngine`` is a part of ``Simulator`` (sim/simulator.py), which sets the attributes it reads: ``model``,
-``data``, ``mj_model``, ``wp_device``, ``use_graphs``, ``substeps``, the torque-speed limit and body forces, and the
+``data``, ``mj_model``, ``wp_device``, ``use_graphs``, ``substeps``, the torque-speed limit, the angular speed cap and body forces, and the
 carried state that ``_snapshot``/``_restore`` (sim/world_state.py) keep over a first capture. Graphs bake in array
 pointers, so every write from torch must be in place (``view[:] = ...``, ``copy_``), never a rebinding.
 """
@@ -134,6 +134,7 @@ class GraphEngine:
         """Advance every world by ``substeps`` physics steps."""
 
         limiter = self.torque_speed
+        speed_cap = self.angular_speed_limit
         forces = self.body_forces if self.body_forces is not None and self.body_forces.active else None
         pose = forces is not None and forces.needs_kinematics
 
@@ -148,6 +149,8 @@ class GraphEngine:
                 if forces is not None:
                     forces.launch()
                 mjw.step(self.model, self.data)
+                if speed_cap is not None:
+                    speed_cap.launch()
             if forces is not None:
                 forces.end_step()
 

@@ -36,7 +36,8 @@ SIM_KEYS = ("dt", "gravity", "integrator", "solver", "cone", "iterations", "ls_i
 
 # Keys of one env.assets entry (docs/config.md, "Scenes of several assets").
 # No collapseFixedJoints: MuJoCo's fusestatic is one compiler flag for the whole model, env.asset's.
-SCENE_ASSET_KEYS = ("assetRoot", "assetFileName", "pos", "rot", "fixBaseLink", "prefix", "keepAssetContacts")
+SCENE_ASSET_KEYS = ("assetRoot", "assetFileName", "pos", "rot", "fixBaseLink", "prefix", "keepAssetContacts",
+                    "maxAngularVelocity")
 
 TorqueSpeed = dict[str, tuple[float, float, float]]
 
@@ -93,7 +94,17 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None, assets
         declared_sensors=sensor_specs(env.get("sensors")),
         stability_probe=stability_probe(sim),
         torque_speed=torque_speed,
+        max_angular_velocity=max_angular_velocity(asset, "env.asset"),
     )
+
+
+def max_angular_velocity(asset: Mapping, key: str) -> float | None:
+    """``<key>.maxAngularVelocity``: IsaacGym's ``max_angular_velocity`` (rad/s, > 0) for the asset's free bodies;
+    absent or null: no cap (MuJoCo's own behaviour; IsaacGym's default is 64)."""
+    value = asset.get("maxAngularVelocity")
+    if value is None:
+        return None
+    return real_number(value, f"{key}.maxAngularVelocity", low=0.0, low_open=True)
 
 
 CONDIMS = (1, 3, 4, 6)
@@ -176,6 +187,7 @@ def scene_assets(cfg: Mapping | None, yaml_dir: str | None, assets_dir: Path,
             quat=quat,
             keep_asset_contacts=bool(entry.get("keepAssetContacts", is_mjcf(path))),
             spec=load_spec(path, collapse_fixed_joints, key),
+            max_angular_velocity=max_angular_velocity(entry, key),
         ))
     return tuple(out)
 

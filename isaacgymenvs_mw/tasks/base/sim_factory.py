@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, request_from_config
+from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, free_joint_speed_limits, request_from_config
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
@@ -26,8 +26,9 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
     """The Simulator of ``request``: ``num_envs`` worlds on ``device``, ``substeps`` physics steps per env step, the
     ``per_world_fields`` batched (the task's and the randomised quantities'), the YAML's ``sim`` sizes and options."""
     sim = cfg.get("sim", {})
+    model = build_model(request)
     simulator = Simulator(
-        build_model(request),
+        model,
         num_worlds=num_envs,
         device=device,
         substeps=substeps,
@@ -38,6 +39,7 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
         deterministic=bool(sim.get("deterministic", False)),  # the run-level `deterministic`, via build_task
         declared_sensors=request.all_sensors(),
         torque_speed=request.torque_speed,
+        angular_speed_limits=free_joint_speed_limits(model, request.angular_speed_caps()),
     )
     if request.collapse_fixed_joints:
         simulator.fused_bodies = fused_bodies(request, simulator.body_names)
