@@ -45,12 +45,23 @@ def main(cfg: DictConfig) -> None:
         record_task_dir(cfg, HydraConfig.get())  # a relative env.asset.assetRoot resolves against the YAML's folder
         check_task_yaml_keys(cfg, HydraConfig.get())  # a misspelt key inside the task YAML, named with its file
         check_before_start(cfg)  # the run's keys and the train YAML, before the learning stack's 4 s of imports
+        _say_starting(cfg)
         from isaacgymenvs_mw.learning.launch import run
 
         try:
             run(cfg, started_at=_STARTED_AT)
         except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM: a training run saved its checkpoint and summary
             _stopped(err, evaluating=bool(cfg.get("test", False)))
+
+
+def _say_starting(cfg: DictConfig) -> None:
+    """One line as soon as the command is known to be good, so that the imports and a first run's kernel compiles
+    (10-20 s on a small CPU) are not silence."""
+    if os.getenv("RANK", "0") != "0":
+        return
+    what = "evaluating" if cfg.get("test", False) else "training"
+    print(f"[train] {cfg.task_name}: {what}; loading torch, MuJoCo Warp and the learner, then building the worlds "
+          f"({time.perf_counter() - _STARTED_AT:.1f} s after start)", flush=True)
 
 
 def _stopped(err: KeyboardInterrupt, evaluating: bool = False) -> None:

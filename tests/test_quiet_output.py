@@ -38,6 +38,15 @@ def test_default_output_is_compact(tmp_path):
     (it_line,) = [ln for ln in out.splitlines() if ln.startswith("[it ")]
     assert "no episode ended yet (longest 2/" in it_line and "ep_rew" not in it_line, it_line
     assert it_line.endswith("| ETA 0s"), it_line  # the last iteration: nothing left
+    # The first line comes before the imports of torch and MuJoCo Warp and says what follows (its time is a
+    # benchmark's to judge: benchmarks/startup_phases.py)
+    first = proc_lines(out)[0]
+    assert re.fullmatch(r"\[train\] Cartpole: training; loading torch, MuJoCo Warp and the learner, then building "
+                        r"the worlds \((\d+\.\d) s after start\)", first), first
+
+
+def proc_lines(out: str) -> list[str]:
+    return [ln for ln in out.splitlines() if ln.strip()]
 
 
 def test_a_quiet_iteration_after_episodes_have_ended_is_not_called_yet(tmp_path):
