@@ -24,7 +24,6 @@ import torch
 
 import isaacgymenvs_mw
 from isaacgymenvs_mw.learning.export import export_policy
-from isaacgymenvs_mw.learning.launch import load_checkpoint
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import compose_config, to_dict
@@ -87,7 +86,7 @@ def main() -> None:
     train_cfg = rsl_rl_config(to_dict(compose_config([f"task={args.task}"]).train))
     train_cfg.pop("max_iterations"), train_cfg.pop("experiment_name", None)
     runner = Runner(env, train_cfg, log_dir=None, device=task.rl_device)
-    load_checkpoint(runner, args.checkpoint, task)  # checks the policy fits the task's sizes
+    runner.load_checkpoint(args.checkpoint, task)  # checks the policy fits the task's sizes
     policy = runner.get_inference_policy(device=task.rl_device)
     result = {"task": args.task, "checkpoint": str(args.checkpoint), "command": list(command),
               "seconds": args.seconds, "settle_s": args.settle, "start": "nominal pose at rest",

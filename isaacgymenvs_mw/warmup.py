@@ -74,18 +74,14 @@ def task_names(overrides: Sequence[str]) -> tuple[list[str], list[str]]:
 def warm_up(cfg) -> None:
     """Build the task of ``cfg`` as a training run does and run one iteration of it (env steps and one update),
     writing nothing but the compile caches."""
-    from isaacgymenvs_mw.learning.launch import build_with_notice, learner, seed_run
-    from isaacgymenvs_mw.learning.rl_games_config import is_rl_games_config
-    from isaacgymenvs_mw.learning.runner import rsl_rl_config
-    from isaacgymenvs_mw.utils.config import to_dict
+    from isaacgymenvs_mw.learning.launch import build_with_notice, seed_run
+    from isaacgymenvs_mw.learning.learners import learner_for
 
     seed_run(cfg)
-    train_cfg = None
-    if not is_rl_games_config(cfg.train):
-        train_cfg = rsl_rl_config(to_dict(cfg.train))
-        train_cfg.pop("max_iterations")
+    learner = learner_for(cfg)
+    learner.check()
     task = build_with_notice(cfg)
-    make_runner, _, _ = learner(cfg, task, train_cfg)
+    make_runner, _ = learner.runner_factory(task)
     runner = make_runner()  # no log folder: learn() writes no checkpoint, summary or TensorBoard file
     runner.learn(1)
     task.close()

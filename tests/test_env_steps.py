@@ -15,7 +15,7 @@ def test_env_steps_counts_num_envs_per_step_and_starts_from_set_train_info(make_
     for _ in range(5):
         task.step(task.zero_actions())
     assert int(task.env_steps) == 5 * 4
-    # what launch.load_checkpoint does with a checkpoint of 3 iterations of 16 steps per env
+    # what Runner.load_checkpoint does with a checkpoint of 3 iterations of 16 steps per env
     task.set_train_info(3 * 16 * 4)
     assert int(task.env_steps) == 192
     task.step(task.zero_actions())

@@ -143,7 +143,7 @@ def test_cartpole_trains_with_a_shared_trunk_and_exports_it(make_cartpole, tmp_p
     checkpoint loads into a fresh runner with the same outputs, and the exported TorchScript policy gives the actor's
     mean actions; a config without share_trunk refuses the checkpoint in one line."""
     from isaacgymenvs_mw.learning.export import export_policy
-    from isaacgymenvs_mw.learning.launch import check_network_sizes
+    from isaacgymenvs_mw.learning.runner import check_network_sizes
     from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
     from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
     from isaacgymenvs_mw.utils.config import compose_config, to_dict

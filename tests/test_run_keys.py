@@ -198,7 +198,7 @@ def test_a_stop_before_the_first_iteration_says_no_checkpoint_exists(tmp_path):
     runs = tmp_path / "runs"
     cmd = [sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", "num_envs=4", "max_iterations=5",
            "train.runner.num_steps_per_env=100000", *CPU_ARGS, f"runs_dir={runs}"]
-    status, text = signal_at_line(cmd, tmp_path, "[train] Cartpole:", signal.SIGINT)  # training starts after it
+    status, text = signal_at_line(cmd, tmp_path, "[train] Cartpole: 4 envs", signal.SIGINT)  # training starts after it
     assert status == 130, text[-3000:]
     assert "no checkpoint exists yet" in text and text.count("stopped by SIGINT") == 1, text[-3000:]
     (run_dir,) = (runs / "Cartpole").iterdir()

@@ -18,10 +18,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from rsl_rl.runners import OnPolicyRunner
 
 from isaacgymenvs_mw._version import __version__
 from isaacgymenvs_mw.learning.reporting import package_versions
+from isaacgymenvs_mw.learning.training_run import TrainingRun
 from isaacgymenvs_mw.utils.files import save_files_whole
 
 METADATA_FILE = "metadata.json"  # name of the TorchScript extra file
@@ -41,7 +41,7 @@ def policy_metadata(task) -> dict[str, Any]:
     return info
 
 
-def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Path, Path]:
+def export_policy(runner: TrainingRun, out_dir: Path, task=None) -> tuple[Path, Path]:
     """Write ``policy.onnx`` and ``policy.pt`` (and, given the task, their metadata and ``model.mjb``).
 
     Both map raw observations, as the task returns them (history stacked), to the deterministic (mean) action. Every
@@ -53,13 +53,9 @@ def export_policy(runner: OnPolicyRunner, out_dir: Path, task=None) -> tuple[Pat
     return out_dir / "policy.onnx", out_dir / "policy.pt"
 
 
-def policy_files(runner: OnPolicyRunner, task=None) -> dict[str, bytes]:
+def policy_files(runner: TrainingRun, task=None) -> dict[str, bytes]:
     """The exported files by name, as bytes: no library writes to the disk itself, so none can abort on a full one."""
-    policy_module = getattr(runner, "policy_module", None)  # a runner of another learner (rl_games) gives its own
-    if policy_module is not None:
-        model = policy_module().to("cpu").eval()  # a copy: the runner's own stays where it is
-    else:
-        model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
+    model, jit = runner.export_modules()  # the learner's policy, normaliser included, on the CPU
     # An image policy (learning/models.py) has one more input per image group, named after it ("camera").
     inputs = list(getattr(model, "input_names", ["obs"]))
     onnx_buffer = io.BytesIO()
@@ -68,10 +64,6 @@ def policy_files(runner: OnPolicyRunner, task=None) -> dict[str, bytes]:
             model, model.get_dummy_inputs(), onnx_buffer, input_names=inputs, output_names=["actions"],
             dynamic_axes={name: {0: "batch"} for name in [*inputs, "actions"]}, opset_version=18, dynamo=False,
         )
-        if policy_module is not None:
-            jit = torch.jit.trace(model, model.get_dummy_inputs())
-        else:
-            jit = torch.jit.script(runner.alg.get_policy().as_jit().to("cpu").eval())
     metadata = policy_metadata(task) if task is not None else None
     text = json.dumps(metadata, indent=2) if metadata is not None else None
     jit_buffer = io.BytesIO()

@@ -8,26 +8,22 @@ import os
 import signal
 import time
 from pathlib import Path
-from typing import Callable
-
 import torch
 from omegaconf import DictConfig, OmegaConf
 
 from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
 from isaacgymenvs_mw.learning.evaluation import evaluate
 from isaacgymenvs_mw.learning.export import export_policy
-from isaacgymenvs_mw.learning.loggers import check_logger
 from isaacgymenvs_mw.learning.reporting import device_description, package_versions, write_json
-from isaacgymenvs_mw.learning.rl_games_config import is_rl_games_config
-from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
+from isaacgymenvs_mw.learning.learners import Learner, check_resume_total, learner_for, read_checkpoint
 from isaacgymenvs_mw.learning.sweep import evaluation_outputs
-from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
+from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
 from isaacgymenvs_mw.learning.training_run import TrainingRun, episode_metrics
-from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv, success_metric_key, training_metric_keys
+from isaacgymenvs_mw.learning.vecenv import success_metric_key, training_metric_keys
 from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
-from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, checkpoint_path, time_budget, to_dict
+from isaacgymenvs_mw.utils.config import check_run_config, check_runs_dir, time_budget, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device
-from isaacgymenvs_mw.utils.errors import ConfigError, one_line
+from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.files import atomic_save
 from isaacgymenvs_mw.utils.seeding import set_seed
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP
@@ -43,70 +39,59 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         cfg.seed = seed - rank  # the base seed; seed_run adds the rank
         if rank == 0:
             print(f"[train] seed=-1 drew seed {cfg.seed} (give seed={cfg.seed} to repeat this run)", flush=True)
-    rl_games = is_rl_games_config(cfg.train)
-    if rl_games:
-        check_train_config(to_dict(cfg.train), cfg.get("learner"))
-    else:
-        train_cfg = rsl_rl_config(to_dict(cfg.train))
-        if not cfg.test:
-            check_logger(train_cfg)
-        max_iterations = int(train_cfg.pop("max_iterations"))
-    checkpoint, saved = _read_checkpoint(cfg, learner="rl_games" if rl_games else "rsl_rl")
+    learner = learner_for(cfg)
+    learner.check()
+    checkpoint, saved = read_checkpoint(cfg, learner)
     if not cfg.test and rank == 0:
         check_runs_dir(cfg.runs_dir)
-    if not rl_games and not cfg.test and saved is not None:
-        check_resume_total(max_iterations, saved, cfg.checkpoint)
+    if not cfg.test and saved is not None:
+        check_resume_total(learner.max_iterations(), learner.saved_iteration(saved), cfg.checkpoint)
 
     task = build_with_notice(cfg)
-    make_runner, experiment, epochs = learner(cfg, task, None if rl_games else train_cfg)
-    if rl_games:
-        max_iterations = epochs
-        if max_iterations < 0:
-            raise ConfigError(f"train.params.config.max_epochs={max_iterations} is invalid: give the iterations to "
-                              "train (or max_iterations=N on the command line)")
-        if not cfg.test and saved is not None:
-            check_resume_total(max_iterations, {"iter": saved.get("iteration", saved.get("epoch", 0))}, cfg.checkpoint)
+    make_runner, experiment = learner.runner_factory(task)
     check_experiment_name(experiment)
-    stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    run_dir = Path(cfg.runs_dir) / experiment / stamp
-    is_main = rank == 0
-    videos = cfg.get("capture_video", False) and is_main
-
     if cfg.test:
-        eval_path, exported, videos_dir = evaluation_outputs(checkpoint)
-        if videos:
-            _attach_video_recorder(cfg, task, videos_dir)
-        runner = make_runner()
-        load_checkpoint(runner, checkpoint, task, saved)
-        policy = runner.get_inference_policy(device=task.rl_device)
-        onnx_path, jit_path = export_policy(runner, exported, task=task)
-        print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
-        result = evaluate(task, policy, task.rl_device, recipe_reward_scale(to_dict(cfg.train)))
-        result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
-                      device=device_description(task.sim_device), versions=package_versions())
-        write_json(eval_path, result)
-        print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
-        print(f"[eval] written to {eval_path}", flush=True)
-        task.close()
-        _leave_process_group(runner)
-        return result
+        return evaluate_checkpoint(cfg, task, make_runner(), checkpoint, saved, rank == 0)
+    return train(cfg, task, learner, make_runner(), (checkpoint, saved), experiment, seed, started_at)
 
-    runner = make_runner()
+
+def evaluate_checkpoint(cfg: DictConfig, task, runner: TrainingRun, checkpoint: Path, saved: dict,
+                        is_main: bool) -> dict:
+    """Test mode: load the checkpoint, export its policy beside it, run each env for one episode, write eval.json."""
+    eval_path, exported, videos_dir = evaluation_outputs(checkpoint)
+    if cfg.get("capture_video", False) and is_main:
+        _attach_video_recorder(cfg, task, videos_dir)
+    runner.load_checkpoint(checkpoint, task, saved)
+    policy = runner.get_inference_policy(device=task.rl_device)
+    onnx_path, jit_path = export_policy(runner, exported, task=task)
+    print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
+    result = evaluate(task, policy, task.rl_device, recipe_reward_scale(to_dict(cfg.train)))
+    result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
+                  device=device_description(task.sim_device), versions=package_versions())
+    write_json(eval_path, result)
+    print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
+    print(f"[eval] written to {eval_path}", flush=True)
+    task.close()
+    _leave_process_group(runner)
+    return result
+
+
+def train(cfg: DictConfig, task, learner: Learner, runner: TrainingRun, resume: tuple[Path | None, dict | None],
+          experiment: str, seed: int, started_at: float) -> dict:
+    """Train ``runner`` (from ``resume``'s checkpoint when given) to the learner's iterations or the time budget, with
+    its run folder, checkpoints and summary.json, whatever ends it."""
+    max_iterations = learner.max_iterations()
+    checkpoint, saved = resume
     if checkpoint is not None:
-        load_checkpoint(runner, checkpoint, task, saved)
+        runner.load_checkpoint(checkpoint, task, saved)
         print(f"[train] resuming from {checkpoint} at iteration {runner.current_learning_iteration} and "
               f"{runner.total_env_steps:,} env steps: training to iteration {max_iterations} (max_iterations counts "
               "the total, as in IsaacGymEnvs)", flush=True)
+    run_dir = Path(cfg.runs_dir) / experiment / datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
+    is_main = int(os.getenv("RANK", "0")) == 0
     if is_main:
-        run_dir = _new_run_dir(run_dir)
-        atomic_save(run_dir / "config.yaml", lambda partial: OmegaConf.save(cfg, partial, resolve=True))
-        runner.log_dir = str(run_dir)
-        runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
-        if cfg.get("save_best", False):
-            runner.best = BestCheckpoint(run_dir, str(cfg.get("sweep_metric", "auto")), success_metric_key(task))
-        if videos:
-            _attach_video_recorder(cfg, task, run_dir / "videos")
-    start_it, start_steps = runner.current_learning_iteration, runner.total_env_steps
+        run_dir = _open_run_dir(cfg, task, runner, run_dir, experiment)
+    start = runner.current_learning_iteration, runner.total_env_steps
     interrupted: KeyboardInterrupt | None = None
     # From here on a signal only asks the run to stop, and the summary is always written: a signal that comes while
     # it is written is recorded, not raised.
@@ -115,13 +100,12 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
         print(f"[train] {cfg.task_name}: {task.num_envs} envs on {device_description(task.sim_device)}, "
               f"{max_iterations} iterations{f' or {budget:g} s of training' if budget else ''}, run dir {run_dir}",
               flush=True)
-        try:
-            random_start = False if rl_games else bool(cfg.train.runner.get("init_at_random_ep_len", False))
-            # max_iterations is the total: a resumed run trains the rest
-            runner.learn(max_iterations - start_it, init_at_random_ep_len=random_start, max_train_time_s=budget)
-        except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): Runner.learn has saved the model
+        try:  # max_iterations is the total: a resumed run trains the rest
+            runner.learn(max_iterations - start[0], init_at_random_ep_len=learner.random_start(),
+                         max_train_time_s=budget)
+        except KeyboardInterrupt as err:  # SIGINT or SIGTERM (StopRequested): learn() has saved the model
             interrupted = err
-        summary = _summary(cfg, task, runner, seed, (start_it, start_steps), started_at, run_dir, interrupted)
+        summary = _summary(cfg, task, runner, seed, start, started_at, run_dir, interrupted)
         if is_main:
             _report_end(summary, runner, run_dir, interrupted)
         task.close()
@@ -132,6 +116,20 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     return summary
 
 
+def _open_run_dir(cfg: DictConfig, task, runner: TrainingRun, run_dir: Path, experiment: str) -> Path:
+    """Make the run folder with the run's config.yaml, and point the runner's logs, best checkpoint and videos at
+    it (the main process only)."""
+    run_dir = _new_run_dir(run_dir)
+    atomic_save(run_dir / "config.yaml", lambda partial: OmegaConf.save(cfg, partial, resolve=True))
+    runner.log_dir = str(run_dir)
+    runner.experiment, runner.run_config = experiment, to_dict(cfg)  # W&B's project default and run config
+    if cfg.get("save_best", False):
+        runner.best = BestCheckpoint(run_dir, str(cfg.get("sweep_metric", "auto")), success_metric_key(task))
+    if cfg.get("capture_video", False):
+        _attach_video_recorder(cfg, task, run_dir / "videos")
+    return run_dir
+
+
 def check_experiment_name(experiment: str) -> None:
     """The run folder is ``runs_dir/<experiment>/<stamp>``: a name that leaves ``runs_dir`` (an absolute path, a
     ``..``) would write it elsewhere, so it is refused."""
@@ -139,24 +137,6 @@ def check_experiment_name(experiment: str) -> None:
     if Path(experiment).is_absolute() or ".." in parts or not parts:
         raise ConfigError(f"experiment={experiment!r} is invalid: give a name, or a relative folder path without "
                           "'..', under runs_dir (runs_dir= picks where runs go)")
-
-
-def learner(cfg: DictConfig, task, train_cfg: dict | None) -> tuple[Callable[[], TrainingRun], str, int]:
-    """The learner that trains ``task``: a function that makes its runner (with no log folder yet), the experiment
-    name, and rl_games' ``max_epochs`` (-1 for rsl-rl-lib). ``train_cfg``: rsl-rl-lib's runner config (from
-    ``rsl_rl_config``), or None for an rl_games train YAML."""
-    verbose = cfg.get("verbose", False)
-    if train_cfg is None:  # deferred: rl_games is an optional extra, imported only by its runs
-        from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
-
-        params = rl_games_params(cfg, task)
-        experiment = str(params["config"]["name"] or cfg.experiment or cfg.task_name)
-        games_env = RlGamesVecEnv(task, recipe_reward_scale({"params": params}))
-        return (lambda: RlGamesRunner(games_env, params, log_dir=None, device=task.rl_device, verbose=verbose),
-                experiment, int(params["config"].get("max_epochs", -1)))
-    env = RslRlVecEnv(task, recipe_reward_scale(to_dict(cfg.train)))
-    experiment = str(train_cfg.pop("experiment_name", None) or cfg.experiment or cfg.task_name)
-    return lambda: Runner(env, train_cfg, log_dir=None, device=task.rl_device, verbose=verbose), experiment, -1
 
 
 def _summary(cfg: DictConfig, task, runner: TrainingRun, seed: int, start: tuple[int, int], started_at: float,
@@ -299,102 +279,3 @@ def _new_run_dir(path: Path) -> Path:
         except FileExistsError:
             n += 1
             candidate = path.with_name(f"{path.name}_{n}")
-
-
-def _read_checkpoint(cfg: DictConfig, learner: str = "rsl_rl") -> tuple[Path | None, dict | None]:
-    """``checkpoint=`` as a path and its contents (on the CPU), read before the simulator is built; ``learner``: the
-    library whose checkpoints the run reads (rl_games' hold their network as "model")."""
-    path = checkpoint_path(cfg)
-    if path is None:
-        return None, None
-    try:  # before the simulator is built, which can take minutes
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:
-        reason = one_line(str(err)).split(". ")[0]
-        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} is not a readable checkpoint (truncated or not "
-                          f"written by torch.save: {reason}); give a model_*.pt of a training run") from err
-    wanted = "model" if learner == "rl_games" else "actor_state_dict"
-    if not isinstance(state, dict) or wanted not in state:
-        other = {"model": "rl_games", "actor_state_dict": "rsl_rl"}
-        written_by = next((f"; it was written by learner={name}" for key, name in other.items()
-                           if isinstance(state, dict) and key in state), "")
-        raise ConfigError(f"checkpoint='{cfg.checkpoint}': {path} holds no {learner} policy (no {wanted}){written_by}; "
-                          f"give a model_*.pt of a training run with learner={learner}")
-    return path, state
-
-
-def _mlp_widths(weights: dict) -> list[int]:
-    """The hidden layer widths of an MLP from its state dict (mlp.<layer>.weight, in layer order)."""
-    layers = sorted((int(k.split(".")[1]), v.shape[0]) for k, v in weights.items()
-                    if k.startswith("mlp.") and k.endswith(".weight") and k.split(".")[1].isdigit())
-    return [width for _, width in layers[:-1]]
-
-
-SHARED_VALUE_HEAD = "value_head.weight"  # in critic_state_dict: the critic was a shared trunk's value head
-
-
-def check_network_sizes(runner: Runner, state: dict, checkpoint: Path) -> None:
-    """The checkpoint's networks have the layer sizes the train config builds; else name the first layer that
-    differs and the config key that sets it (rsl-rl-lib would stop with a page of 'size mismatch' lines)."""
-    built = runner.alg.save()
-    shared = {name: SHARED_VALUE_HEAD in d.get("critic_state_dict", {})
-              for name, d in (("mine", built), ("saved", state))}
-    if "critic_state_dict" in state and shared["mine"] != shared["saved"]:
-        raise ConfigError(f"checkpoint='{checkpoint}' was trained with train.algorithm.share_trunk={shared['saved']}, "
-                          f"this run builds share_trunk={shared['mine']}: give "
-                          f"+train.algorithm.share_trunk={shared['saved']}")
-    for part in ("actor", "critic"):
-        mine, saved = built.get(f"{part}_state_dict", {}), state.get(f"{part}_state_dict", {})
-        for name, tensor in saved.items():
-            if name not in mine or tuple(mine[name].shape) == tuple(tensor.shape):
-                continue
-            shapes = f"{tuple(tensor.shape)} in the checkpoint, {tuple(mine[name].shape)} as configured"
-            if name.startswith("mlp."):
-                key = f"train.{part}.hidden_dims"
-                hint = f"give {key}={_mlp_widths(saved)} (the checkpoint's), not {_mlp_widths(mine)}"
-            else:
-                key, hint = f"train.{part}", f"give the train.{part} settings it was trained with"
-            raise ConfigError(f"checkpoint='{checkpoint}' does not fit {key}: its {part} layer {name} is {shapes}; "
-                              f"{hint}")
-
-
-def check_resume_total(max_iterations: int, saved: dict, given: str) -> None:
-    """Resuming trains up to ``max_iterations`` in total (IsaacGymEnvs' meaning): it must lie beyond the checkpoint's
-    iteration."""
-    done = int(saved.get("iter", 0) or 0)
-    if max_iterations <= done:
-        raise ConfigError(f"max_iterations={max_iterations} is not above the iteration of checkpoint='{given}' "
-                          f"({done}): on resume max_iterations is the total, so give max_iterations > {done} "
-                          f"(e.g. {2 * max(done, 1)})")
-
-
-def load_checkpoint(runner: TrainingRun, checkpoint: Path, task, state: dict | None = None) -> None:
-    """Load a checkpoint after checking that its policy fits this task's observation and action sizes; ``state``:
-    the file's contents when the caller has read them already (only their shapes are used here)."""
-    if state is None:
-        state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    if hasattr(runner, "load_checkpoint"):  # RlGamesRunner checks and loads its own
-        runner.load_checkpoint(checkpoint, task, state)
-        return
-    actor = state.get("actor_state_dict", {})
-    weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
-    if weights:
-        ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
-        num_obs = task.observation_space.shape[0]  # with env.history: the stacked size the policy sees
-        # An image model's first MLP layer also reads its CNNs' features: only the actions can be compared here.
-        images = any(k.startswith("cnns.") for k in actor)
-        if (ckpt_obs != num_obs and not images) or ckpt_act != task.num_actions:
-            raise ConfigError(
-                f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
-                f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"
-            )
-    check_network_sizes(runner, state, checkpoint)
-    infos = runner.load(str(checkpoint), map_location=task.rl_device)
-    steps_per_iteration = int(runner.cfg["num_steps_per_env"]) * task.num_envs
-    # The run's env-step count goes on from the checkpoint's (saved since it was recorded; estimated before).
-    estimate = runner.current_learning_iteration * steps_per_iteration
-    runner.total_env_steps = int((infos or {}).get("env_steps", estimate))
-    # Randomisation schedules and the penalty curriculum count env steps per env: a resumed run goes on from the
-    # checkpoint's, and test mode evaluates under the conditions the policy had reached.
-    task.set_train_info(runner.current_learning_iteration * steps_per_iteration)
-

@@ -23,8 +23,10 @@ import torch
 from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
+from isaacgymenvs_mw.learning.learners import Learner
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config
+from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
 from isaacgymenvs_mw.learning.reporting import FirstCollectProgress
 from isaacgymenvs_mw.learning.training_run import TrainingRun, keep_stop_handler
 from isaacgymenvs_mw.learning.vecenv import EpisodeStats, record_step
@@ -350,6 +352,12 @@ class RlGamesRunner(TrainingRun):
         the mean to [-1, 1] and maps it onto the action space, as in training)."""
         return _RlGamesPolicy(self.agent)
 
+    def export_modules(self) -> tuple[torch.nn.Module, torch.jit.ScriptModule]:
+        """The deterministic policy on the CPU, for ONNX and traced as TorchScript (a copy of the agent's)."""
+        module = self.policy_module().to("cpu").eval()
+        with torch.no_grad():
+            return module, torch.jit.trace(module, module.get_dummy_inputs())
+
     def get_inference_policy(self, device: str | None = None) -> Callable:
         module = self.policy_module().to(device or self.device).eval()
 
@@ -409,3 +417,29 @@ def _to_device(state: Any, device: str) -> Any:
     if isinstance(state, dict):
         return {k: _to_device(v, device) for k, v in state.items()}
     return state
+
+
+class RlGamesLearner(Learner):
+    """rl_games (IsaacGymEnvs' learner), configured by an rl_games train YAML (``params:``)."""
+
+    name = LEARNER
+
+    def check(self) -> None:
+        check_train_config(to_dict(self.cfg.train), self.cfg.get("learner"))
+        self._max_epochs = int(to_dict(self.cfg.train)["params"]["config"].get("max_epochs", -1))
+        if self._max_epochs < 0:
+            raise ConfigError(f"train.params.config.max_epochs={self._max_epochs} is invalid: give the iterations to "
+                              "train (or max_iterations=N on the command line)")
+
+    def runner_factory(self, task: VecTask) -> tuple[Callable[[], RlGamesRunner], str]:
+        params = rl_games_params(self.cfg, task)
+        experiment = str(params["config"]["name"] or self.cfg.experiment or self.cfg.task_name)
+        env = RlGamesVecEnv(task, recipe_reward_scale({"params": params}))
+        verbose = bool(self.cfg.get("verbose", False))
+        return lambda: RlGamesRunner(env, params, log_dir=None, device=task.rl_device, verbose=verbose), experiment
+
+    def max_iterations(self) -> int:
+        return self._max_epochs
+
+    def saved_iteration(self, state: dict) -> int:
+        return int(state.get("iteration", state.get("epoch", 0)) or 0)

@@ -11,18 +11,23 @@ from __future__ import annotations
 import contextlib
 import io
 import time
+from pathlib import Path
+from typing import Callable
 
 import torch
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, learner_tensors
+from isaacgymenvs_mw.learning.learners import Learner
+from isaacgymenvs_mw.learning.loggers import check_logger
 from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.ppo import LR_MIN
 from isaacgymenvs_mw.learning.reporting import FirstCollectProgress, collapsed_noise, noise_collapse_line
-from isaacgymenvs_mw.learning.train_config import check_train_config
+from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
 from isaacgymenvs_mw.learning.training_run import TrainingRun, keep_stop_handler
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+from isaacgymenvs_mw.utils.config import to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.files import atomic_save
 from isaacgymenvs_mw.utils.stop import StopRequested  # noqa: F401  (imported from here too)
@@ -177,6 +182,39 @@ class Runner(OnPolicyRunner, TrainingRun):
         atomic_save(path, lambda partial: torch.save(state, partial))
         self.logger.save_model(path, self.current_learning_iteration)
 
+    def load_checkpoint(self, checkpoint: Path, task, state: dict | None = None) -> None:
+        """Load a checkpoint after checking that its policy fits this task's observation and action sizes and the
+        train YAML's networks; ``state``: the file's contents when the caller has read them already."""
+        if state is None:
+            state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+        actor = state.get("actor_state_dict", {})
+        weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
+        if weights:
+            ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
+            num_obs = task.observation_space.shape[0]  # with env.history: the stacked size the policy sees
+            # An image model's first MLP layer also reads its CNNs' features: only the actions can be compared here.
+            images = any(k.startswith("cnns.") for k in actor)
+            if (ckpt_obs != num_obs and not images) or ckpt_act != task.num_actions:
+                raise ConfigError(
+                    f"checkpoint '{checkpoint}' was trained with {ckpt_obs} observations and {ckpt_act} actions, but "
+                    f"task {type(task).__name__} has {num_obs} observations and {task.num_actions} actions"
+                )
+        check_network_sizes(self, state, checkpoint)
+        infos = self.load(str(checkpoint), map_location=task.rl_device)
+        steps_per_iteration = self.steps_per_env * task.num_envs
+        # The run's env-step count goes on from the checkpoint's (saved since it was recorded; estimated before).
+        estimate = self.current_learning_iteration * steps_per_iteration
+        self.total_env_steps = int((infos or {}).get("env_steps", estimate))
+        # Randomisation schedules and the penalty curriculum count env steps per env: a resumed run goes on from the
+        # checkpoint's, and test mode evaluates under the conditions the policy had reached.
+        task.set_train_info(self.current_learning_iteration * steps_per_iteration)
+
+    def export_modules(self) -> tuple[torch.nn.Module, torch.jit.ScriptModule]:
+        """The deterministic policy (normaliser included) on the CPU, for ONNX and as TorchScript (rsl-rl-lib's
+        exporters' modules: copies, the runner's own stay where they are)."""
+        policy = self.alg.get_policy()
+        return policy.as_onnx(verbose=False).to("cpu").eval(), torch.jit.script(policy.as_jit().to("cpu").eval())
+
     def _action_noise(self) -> dict[str, float]:
         """The policy's action noise as its parameters hold it after the update: the mean and the smallest standard
         deviation over the actions. The smallest is the one to watch: a few collapsed actions pin the KL-adaptive rate
@@ -211,3 +249,65 @@ class Runner(OnPolicyRunner, TrainingRun):
                                               self.env.task.action_actuators())
         if self.noise_collapse is not None:
             print(noise_collapse_line(self.noise_collapse, self._noise_lever()), flush=True)
+
+
+def _mlp_widths(weights: dict) -> list[int]:
+    """The hidden layer widths of an MLP from its state dict (mlp.<layer>.weight, in layer order)."""
+    layers = sorted((int(k.split(".")[1]), v.shape[0]) for k, v in weights.items()
+                    if k.startswith("mlp.") and k.endswith(".weight") and k.split(".")[1].isdigit())
+    return [width for _, width in layers[:-1]]
+
+
+SHARED_VALUE_HEAD = "value_head.weight"  # in critic_state_dict: the critic was a shared trunk's value head
+
+
+def check_network_sizes(runner: Runner, state: dict, checkpoint: Path) -> None:
+    """The checkpoint's networks have the layer sizes the train config builds; else name the first layer that
+    differs and the config key that sets it (rsl-rl-lib would stop with a page of 'size mismatch' lines)."""
+    built = runner.alg.save()
+    shared = {name: SHARED_VALUE_HEAD in d.get("critic_state_dict", {})
+              for name, d in (("mine", built), ("saved", state))}
+    if "critic_state_dict" in state and shared["mine"] != shared["saved"]:
+        raise ConfigError(f"checkpoint='{checkpoint}' was trained with train.algorithm.share_trunk={shared['saved']}, "
+                          f"this run builds share_trunk={shared['mine']}: give "
+                          f"+train.algorithm.share_trunk={shared['saved']}")
+    for part in ("actor", "critic"):
+        mine, saved = built.get(f"{part}_state_dict", {}), state.get(f"{part}_state_dict", {})
+        for name, tensor in saved.items():
+            if name not in mine or tuple(mine[name].shape) == tuple(tensor.shape):
+                continue
+            shapes = f"{tuple(tensor.shape)} in the checkpoint, {tuple(mine[name].shape)} as configured"
+            if name.startswith("mlp."):
+                key = f"train.{part}.hidden_dims"
+                hint = f"give {key}={_mlp_widths(saved)} (the checkpoint's), not {_mlp_widths(mine)}"
+            else:
+                key, hint = f"train.{part}", f"give the train.{part} settings it was trained with"
+            raise ConfigError(f"checkpoint='{checkpoint}' does not fit {key}: its {part} layer {name} is {shapes}; "
+                              f"{hint}")
+
+
+class RslRlLearner(Learner):
+    """rsl-rl-lib's PPO (this project's default), configured by cfg/train/<Task>PPO.yaml."""
+
+    name = "rsl_rl"
+
+    def check(self) -> None:
+        self.train_cfg = rsl_rl_config(to_dict(self.cfg.train))
+        if not self.cfg.test:
+            check_logger(self.train_cfg)
+        self._max_iterations = int(self.train_cfg.pop("max_iterations"))
+
+    def runner_factory(self, task) -> tuple[Callable[[], Runner], str]:
+        env = RslRlVecEnv(task, recipe_reward_scale(to_dict(self.cfg.train)))
+        experiment = str(self.train_cfg.pop("experiment_name", None) or self.cfg.experiment or self.cfg.task_name)
+        verbose = bool(self.cfg.get("verbose", False))
+        return lambda: Runner(env, self.train_cfg, log_dir=None, device=task.rl_device, verbose=verbose), experiment
+
+    def max_iterations(self) -> int:
+        return self._max_iterations
+
+    def saved_iteration(self, state: dict) -> int:
+        return int(state.get("iter", 0) or 0)
+
+    def random_start(self) -> bool:
+        return bool(self.cfg.train.runner.get("init_at_random_ep_len", False))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 from collections import deque
+from pathlib import Path
 
 import torch
 
@@ -26,6 +27,16 @@ class TrainingRun:
     """The learner-independent half of a runner (see the module's docstring)."""
 
     steps_per_env: int  # env steps per environment in one iteration's rollout
+
+    # What each learner's runner provides (learning/learners.py: its Learner makes it).
+    def load_checkpoint(self, checkpoint: Path, task, state: dict | None = None) -> None:
+        """Load ``checkpoint`` (``state``: its contents, read already) after checking it fits ``task`` and the train
+        YAML, and continue the run's env-step count (and the task's schedules) from it."""
+        raise NotImplementedError
+
+    def export_modules(self) -> tuple[torch.nn.Module, torch.jit.ScriptModule]:
+        """The deterministic policy on the CPU: a module for ONNX export and its TorchScript form."""
+        raise NotImplementedError
 
     def init_training_run(self, guard: LearnerGuard, is_main: bool) -> None:
         self.is_main = is_main
