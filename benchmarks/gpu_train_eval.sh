@@ -6,9 +6,10 @@
 #
 # Writes OUT_DIR/<NAME>.train.log, <NAME>.eval_best.log, <NAME>.eval_last.log, <NAME>.summary.json and
 # <NAME>.eval_{best,last}.json; OUT_DIR/<NAME>.done when the job has finished. The overrides go to training and
-# evaluation alike (learner=rl_games, train.* keys). DRY_RUN_OVERRIDES are added after every job's own, to try a round
-# on the CPU before spending GPU time on it:
-#   DRY_RUN_OVERRIDES="sim_device=cpu rl_device=cpu num_envs=8 max_iterations=2" bash benchmarks/rounds/<round>.sh OUT
+# evaluation alike (learner=rl_games, train.* keys). DRY_RUN_OVERRIDES are added after every job's own, to try the
+# jobs on the CPU before spending GPU time on them:
+#   DRY_RUN_OVERRIDES="sim_device=cpu rl_device=cpu num_envs=8 max_iterations=2" \
+#     bash benchmarks/gpu_train_eval.sh OUT 60 "NAME 0 TASK SEED [overrides...]" ...
 # (a dry run also keeps the machine's compile caches).
 set -u
 out=$1; seconds=$2; shift 2
