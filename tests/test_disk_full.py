@@ -18,7 +18,7 @@ import pytest
 import torch
 
 from conftest import CPU_ARGS, REPO_ROOT
-from isaacgymenvs_mw.utils.config import latest_checkpoint
+from isaacgymenvs_mw.learning.checkpoints import latest_checkpoint
 from isaacgymenvs_mw.utils.files import DISK_ERROR_STATUS, DiskWriteError, atomic_save
 
 NO_SPACE = os.strerror(errno.ENOSPC)  # "No space left on device"

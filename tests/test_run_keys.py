@@ -19,7 +19,8 @@ from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.runner import Runner, StopRequested
 from isaacgymenvs_mw.utils.stop import StopProtocol
-from isaacgymenvs_mw.utils.config import check_runs_dir, compose_config
+from isaacgymenvs_mw.learning.checkpoints import check_runs_dir
+from isaacgymenvs_mw.utils.config import compose_config
 
 
 @pytest.fixture

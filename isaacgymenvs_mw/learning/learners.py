@@ -19,7 +19,7 @@ from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.rl_games_config import is_rl_games_config
 from isaacgymenvs_mw.learning.training_run import TrainingRun
-from isaacgymenvs_mw.utils.config import checkpoint_path
+from isaacgymenvs_mw.learning.checkpoints import checkpoint_path
 from isaacgymenvs_mw.utils.errors import ConfigError, one_line
 
 # learner name (the run key `learner`) -> "module:class". Modules are imported when chosen: an optional library

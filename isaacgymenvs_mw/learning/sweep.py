@@ -41,7 +41,7 @@ from pathlib import Path
 
 from isaacgymenvs_mw.learning.best_checkpoint import (BEST_CHECKPOINT, METRIC_PREFIX, SMOOTHING, chosen_by,
                                                       metric_key, smoothed)
-from isaacgymenvs_mw.utils.config import checkpoint_iteration, latest_checkpoint
+from isaacgymenvs_mw.learning.checkpoints import checkpoint_iteration, latest_checkpoint
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 

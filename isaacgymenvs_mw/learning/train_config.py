@@ -6,9 +6,9 @@ import importlib.util
 
 from omegaconf import DictConfig
 
+from isaacgymenvs_mw.learning.checkpoints import checkpoint_path
 from isaacgymenvs_mw.learning.rl_games_config import check_rl_games_config, is_rl_games_config
-from isaacgymenvs_mw.utils.config import (boolean, check_run_config, checkpoint_path, one_of, real_number, to_dict,
-                                          whole_number)
+from isaacgymenvs_mw.utils.config import boolean, check_run_config, one_of, real_number, to_dict, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 TRAIN_SECTIONS = ("runner", "algorithm", "actor", "critic")  # the train YAML's sections, as OnPolicyRunner reads them
