@@ -256,7 +256,7 @@ class LeggedTask(VecTask):
         self.rewards = RewardTerms.from_env(self, env, self.num_envs, self.device, dt=self.control_dt,
                                             only_positive=bool(rew.get("onlyPositiveRewards", True)),
                                             unclamped=("termination",), penalty_curriculum=rew.get("penaltyCurriculum"),
-                                            step_count=self.randomizer.step_count)
+                                            step_count=self.episode.run_steps)
         self._deviation_mask = joint_mask("jointDeviationJoints", "joint_deviation")
         self._upper_body_mask = joint_mask("upperBodyJoints", "upper_body_posture")
 

@@ -38,8 +38,12 @@ class Episode:
     the worlds whose state or inputs were not finite. ``max_episode_length``: policy steps of the time limit."""
 
     def __init__(self, num_envs: int, device: str, max_episode_length: int, blowups: BlowupLog,
-                 shared_sequence: bool = True) -> None:
+                 shared_sequence: bool = True, run_steps: torch.Tensor | None = None) -> None:
         n, dev = num_envs, device
+        # The run's env steps per env so far, a () float32 device tensor: randomisation schedules and the penalty
+        # curriculum read it (given here when the randomisation layer, built first, holds it already), and a resumed
+        # run or test mode sets it from the checkpoint (VecTask.set_train_info).
+        self.run_steps = run_steps if run_steps is not None else torch.zeros((), device=dev, dtype=torch.float32)
         self.max_episode_length = max_episode_length
         # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
         # timeout_buf (close_step); a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.
@@ -54,6 +58,11 @@ class Episode:
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
         self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
+
+    def count_step(self) -> None:
+        """One more env step of the run (in place: the schedules and the reward curriculum hold this tensor, and a
+        compiled ``+=`` would rebind it)."""
+        self.run_steps.add_(1.0)
 
     def mask(self, env_ids: torch.Tensor) -> torch.Tensor:
         """A boolean (num_envs,) mask from a mask or an index tensor (IsaacGymEnvs passes indices)."""

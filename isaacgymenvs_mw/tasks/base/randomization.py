@@ -210,7 +210,8 @@ class Randomizer:
     ``observations`` (noise). All of it is masked torch work on the sim device.
     """
 
-    def __init__(self, task_cfg: dict | None, control_dt: float, num_envs: int, device: torch.device) -> None:
+    def __init__(self, task_cfg: dict | None, control_dt: float, num_envs: int, device: torch.device,
+                 step_count: torch.Tensor | None = None) -> None:
         task_cfg = dict(task_cfg or {})
         self.enabled = bool(task_cfg.get("randomize", False))
         params = dict(task_cfg.get("randomization_params") or {}) if self.enabled else {}
@@ -265,7 +266,9 @@ class Randomizer:
                                     QUANTITIES[group][name], actor)
         self.params: list[Param] = []
         self.sim: Simulator | None = None
-        self.step_count = torch.zeros((), device=device, dtype=torch.float32)
+        # The run's env steps per env, which the schedules read: the episode's clock (tasks/base/episode.py), which
+        # counts it; a Randomizer made on its own (tests) keeps a clock of its own.
+        self.step_count = step_count if step_count is not None else torch.zeros((), device=device, dtype=torch.float32)
         self.term_noise: torch.Tensor | None = None
         self.max_delay = 0
 
@@ -551,7 +554,6 @@ class Randomizer:
         return x + offsets
 
     def count_step(self) -> None:
-        self.step_count.add_(1.0)  # in place: the reward curriculum holds this tensor (a compiled += would rebind it)
         self.since_draw.add_(1)
 
     # ---------------------------------------------------------------- delay

@@ -96,7 +96,8 @@ class VecTask(IGESurface):
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
         self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
-                                     self.num_envs, self.sim_device)
+                                     self.num_envs, self.sim_device,
+                                     step_count=torch.zeros((), device=self.sim_device, dtype=torch.float32))
         self.sim: Simulator | None = None
         self.create_sim()
         if self.sim is None:
@@ -145,7 +146,8 @@ class VecTask(IGESurface):
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
         self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim),
-                               shared_sequence=type(self).post_physics_step is VecTask.post_physics_step)
+                               shared_sequence=type(self).post_physics_step is VecTask.post_physics_step,
+                               run_steps=self.randomizer.step_count)  # the episode counts the clock the layer reads
         self.extras: dict[str, Any] = {}
         self.metrics = TaskMetrics(self.declared_metrics, n, dev)  # recorded by the task's step, read by learning/
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
@@ -319,6 +321,7 @@ class VecTask(IGESurface):
             self.sim.dof_vel.clamp_(min=-self.dof_velocity_clamp, max=self.dof_velocity_clamp)
         self.episode.after_physics(self.post_physics_step)
         self.randomizer.observations(self.obs_buf)
+        self.episode.count_step()
         self.randomizer.count_step()
         self.episode.guard_inputs(self.observations.finish_step)  # an env reset in this step starts its history
 
@@ -364,7 +367,7 @@ class VecTask(IGESurface):
 
     def set_train_info(self, env_frames: int, *args, **kwargs) -> None:
         # Randomisation schedules count env steps (IsaacGymEnvs' last_step): resume them where training is.
-        self.randomizer.step_count.fill_(env_frames // self.num_envs)
+        self.episode.run_steps.fill_(env_frames // self.num_envs)
 
     @TaskOverridable
     def env_steps(self) -> torch.Tensor:
@@ -378,7 +381,7 @@ class VecTask(IGESurface):
 
     def _env_steps(self) -> torch.Tensor:
         # the framework's reads of the count: a task may keep its own ``env_steps`` (tasks/base/public_names.py)
-        return self.randomizer.step_count.long() * self.num_envs
+        return self.episode.run_steps.long() * self.num_envs
 
     def get_env_state(self) -> None:  # IsaacGymEnvs' checkpoint hooks: nothing beyond the policy to save
         return None
