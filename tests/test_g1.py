@@ -333,6 +333,6 @@ def test_g1_terrain_builds_and_steps():
         obs, rew, done, _ = task.step(0.3 * torch.randn(N, 23))
     assert torch.isfinite(obs["obs"]).all() and torch.isfinite(rew).all()
     # On terrain the base height is measured above the ground under the base.
-    ground = task.height_map(task.sim.root_pos[:, 0], task.sim.root_pos[:, 1])
+    ground = task.ground.height_map(task.sim.root_pos[:, 0], task.sim.root_pos[:, 1])
     assert torch.allclose(task._base_height(), task.sim.root_pos[:, 2] - ground)
     assert math.isclose(task.feet_clearance_target, 0.08)

@@ -165,12 +165,13 @@ def test_height_lookup_equals_mj_ray_on_the_compiled_model(task):
     rng = np.random.default_rng(1)
     xy = rng.uniform((-0.9, -0.9), (2 * 4.0 + 0.9, 5 * 4.0 + 0.9), size=(300, 2))
     expected = ray_heights(m, xy)
-    got = task.height_map(torch.tensor(xy[:, 0], dtype=torch.float), torch.tensor(xy[:, 1], dtype=torch.float))
+    got = task.ground.height_map(torch.tensor(xy[:, 0], dtype=torch.float),
+                                 torch.tensor(xy[:, 1], dtype=torch.float))
     np.testing.assert_allclose(got.numpy(), expected, atol=2e-5)
     # And the compiled heightfield is the generator's map (to float32 storage).
     grid_points = np.array([(a * 0.1 - 1.0, b * 0.1 - 1.0) for a, b in rng.integers(0, 100, size=(50, 2))])
     ab = np.round((grid_points + 1.0) / 0.1).astype(int)
-    np.testing.assert_allclose(ray_heights(m, grid_points), task.terrain.heights[ab[:, 0], ab[:, 1]], atol=2e-5)
+    np.testing.assert_allclose(ray_heights(m, grid_points), task.ground.terrain.heights[ab[:, 0], ab[:, 1]], atol=2e-5)
 
 
 def sensed_heights(task) -> torch.Tensor:
@@ -275,11 +276,11 @@ def test_the_ground_parts_share_one_friction_draw_per_env():
 def test_robots_spawn_on_their_cells_surface_on_every_type(robot):
     task = make(robot, [T + "curriculum=False", *WITH_STONES])
     levels = torch.tensor([0, 1] * 5)
-    task.terrain_levels[:] = levels
-    task.env_origins[:] = task.terrain_origins[levels, task.terrain_types]
-    assert sorted(set(task.terrain_types.tolist())) == [0, 1, 2, 3, 4, 5]  # every type, stepping stones too
+    task.ground.terrain_levels[:] = levels
+    task.ground.env_origins[:] = task.ground.terrain_origins[levels, task.ground.terrain_types]
+    assert sorted(set(task.ground.terrain_types.tolist())) == [0, 1, 2, 3, 4, 5]  # every type, stepping stones too
     task.reset()
-    origins = task.terrain.origins[levels.numpy(), task.terrain_types.numpy()]
+    origins = task.ground.terrain.origins[levels.numpy(), task.ground.terrain_types.numpy()]
     start = task.sim.root_pos.clone().numpy()
     init_z = float(task.cfg["env"]["baseInitState"]["pos"][2])
     np.testing.assert_allclose(start[:, 2], origins[:, 2] + init_z, atol=1e-6)
@@ -297,7 +298,7 @@ def test_robots_spawn_on_their_cells_surface_on_every_type(robot):
     for e in range(NUM_ENVS):
         for b in feet:
             x, y, z = xpos[e, b]
-            surface = task.height_map(torch.tensor([x]), torch.tensor([y])).item()
+            surface = task.ground.height_map(torch.tensor([x]), torch.tensor([y])).item()
             bottom = z - radius[b]
             assert surface - 0.015 <= bottom <= surface + 0.06, (robot, e, b, bottom, surface)
     assert bool(touching.all()), f"a foot is in the air: {touching}"
@@ -309,48 +310,49 @@ def test_curriculum_moves_envs_up_down_and_wraps_past_the_top(task):
     task.reset()  # the first reset only places envs
     torch.manual_seed(0)
     n = NUM_ENVS
-    task.curriculum = True
-    task.terrain_levels[:] = torch.tensor([0, 1, 1, 0, 1, 0, 1, 1, 0, 1])
-    task.env_origins[:] = task.terrain_origins[task.terrain_levels, task.terrain_types]
+    task.ground.curriculum = True
+    task.ground.terrain_levels[:] = torch.tensor([0, 1, 1, 0, 1, 0, 1, 1, 0, 1])
+    task.ground.env_origins[:] = task.ground.terrain_origins[task.ground.terrain_levels, task.ground.terrain_types]
     # Distances walked from the cell origin (cell 4 m: up beyond 2 m) and commanded speeds (episode 20 s:
     # down below 10 s * |command|).
     walked = torch.tensor([2.1, 2.5, 1.9, 0.1, 1.1, 1.5, 0.0, 0.0, 0.0, 3.0])
     speed = torch.tensor([1.0, 1.0, 1.0, 1.0, 0.1, 0.5, 0.0, 0.0, 0.5, 1.0])
     mask = torch.tensor([True] * 9 + [False])
-    pos = task.env_origins.clone()
+    pos = task.ground.env_origins.clone()
     pos[:, 0] += walked
     task.sim.write_state(torch.ones(n, dtype=torch.bool), root_pos=pos)
     task.commands[:] = 0.0
     task.commands[:, 1] = speed
-    before = task.terrain_levels.clone()
-    task._update_terrain_curriculum(mask)
-    after = task.terrain_levels
+    before = task.ground.terrain_levels.clone()
+    task.ground.update_curriculum(mask, task.commands, task.max_episode_length_s, task.nonfinite_buf)
+    after = task.ground.terrain_levels
     # 0: up 0->1; 1: up past the top (1) -> a random level; 2 (1.9 m < 2 m, < 10 m asked), 3: down (3 clamps
     # at 0); 4: 1.1 m >= 1.0 m asked,
     # stays; 5: 1.5 m < 5 m asked, down; 6, 7: no command, stay; 8: down, clamps at 0; 9: not resetting, unchanged.
     assert after[0] == 1 and 0 <= after[1] < 2
     assert after.tolist()[2:] == [0, 0, 1, 0, 1, 1, 0, int(before[9])]
-    np.testing.assert_allclose(task.env_origins.numpy(),
-                               task.terrain.origins[after.numpy(), task.terrain_types.numpy()], atol=1e-6)
+    np.testing.assert_allclose(task.ground.env_origins.numpy(),
+                               task.ground.terrain.origins[after.numpy(), task.ground.terrain_types.numpy()], atol=1e-6)
 
 
 def test_a_blown_up_world_respawns_on_its_cell_and_keeps_its_level(task):
     """VecTask puts a blown-up world back in the model's initial pose, at the map's corner, far from its cell.
     The task resets it in the same step: on its own cell, and without a curriculum move for that distance."""
     task.reset()
-    task.curriculum = True
+    task.ground.curriculum = True
     for _ in range(2):
         task.step(task.zero_actions())
     bad = 3
-    level = int(task.terrain_levels[bad])
+    level = int(task.ground.terrain_levels[bad])
     corner = torch.tensor(task.sim.mj_model.qpos0[:2], dtype=torch.float)  # where VecTask's reset puts the base
-    assert float(torch.norm(task.env_origins[bad, :2] - corner)) > 0.5 * task.cell_length  # would count as "up"
+    # would count as "up"
+    assert float(torch.norm(task.ground.env_origins[bad, :2] - corner)) > 0.5 * task.ground.cell_length
     task.sim.qvel[bad, 0] = float("nan")
     _, _, reset, extras = task.step(task.zero_actions())
     assert bool(extras["nonfinite_resets"][bad]) and int(reset[bad]) == 1
-    assert int(task.terrain_levels[bad]) == level
-    offset = (task.sim.root_pos[bad, :2] - task.env_origins[bad, :2]).abs()
-    assert bool((offset <= task.spawn_jitter + 1e-5).all()), offset
+    assert int(task.ground.terrain_levels[bad]) == level
+    offset = (task.sim.root_pos[bad, :2] - task.ground.env_origins[bad, :2]).abs()
+    assert bool((offset <= task.ground.spawn_jitter + 1e-5).all()), offset
     assert int(task.progress_buf[bad]) == 0 and not task.rewards.episode_sums[bad].any()
 
 
@@ -359,21 +361,22 @@ def test_wrap_past_the_top_draws_every_level():
     t = make(overrides=[T + "numLevels=4", T + "maxInitLevel=3"])
     t.reset()
     for _ in range(30):
-        t.terrain_levels[:] = 3
-        t.env_origins[:] = t.terrain_origins[t.terrain_levels, t.terrain_types]
-        pos = t.env_origins.clone()
+        t.ground.terrain_levels[:] = 3
+        t.ground.env_origins[:] = t.ground.terrain_origins[t.ground.terrain_levels, t.ground.terrain_types]
+        pos = t.ground.env_origins.clone()
         pos[:, 0] += 3.0  # > half a cell
         t.sim.write_state(torch.ones(NUM_ENVS, dtype=torch.bool), root_pos=pos)
-        t._update_terrain_curriculum(torch.ones(NUM_ENVS, dtype=torch.bool))
-        task_levels += t.terrain_levels.tolist()
+        t.ground.update_curriculum(torch.ones(NUM_ENVS, dtype=torch.bool), t.commands, t.max_episode_length_s,
+                                   t.nonfinite_buf)
+        task_levels += t.ground.terrain_levels.tolist()
     assert set(task_levels) == {0, 1, 2, 3}
 
 
 def test_mean_terrain_level_reaches_the_episode_stats(task):
     task.reset()
-    task.terrain_levels[:] = torch.tensor([0, 1] * 5)
+    task.ground.terrain_levels[:] = torch.tensor([0, 1] * 5)
     mask = torch.tensor([True, False] * 5)
-    task.curriculum = False
+    task.ground.curriculum = False
     task.reset_idx(mask)
     stats = EpisodeStats(NUM_ENVS, "cpu")
     stats.record(torch.zeros(NUM_ENVS), mask, torch.zeros(NUM_ENVS, dtype=torch.bool),
@@ -384,7 +387,7 @@ def test_mean_terrain_level_reaches_the_episode_stats(task):
 
 def test_flat_tasks_have_no_terrain():
     flat = isaacgymenvs_mw.make("Anymal", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True, seed=0)
-    assert flat.terrain is None
+    assert flat.ground.terrain is None and not flat.ground.metrics() and not flat.ground.evaluation_groups()
     assert int(flat.sim.mj_model.geom_type[flat.ground_geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
 
 
@@ -404,7 +407,7 @@ def test_evaluation_reports_each_terrain_level():
     from isaacgymenvs_mw.learning.evaluation import evaluate
 
     t = make(overrides=[T + "curriculum=False", "task.env.episodeLength_s=0.5"])
-    levels = t.terrain_levels.clone()
+    levels = t.ground.terrain_levels.clone()
     out = evaluate(t, lambda obs: torch.zeros(NUM_ENVS, 12), "cpu")
     per = out["per_terrain_level"]
     assert sorted(per) == sorted(str(v) for v in set(levels.tolist()))
@@ -437,7 +440,7 @@ def test_training_logs_the_terrain_level(tmp_path, capsys):
 
 def test_terrain_type_plane_keeps_the_flat_ground():
     t = make(overrides=[T + "type=plane", "+task.env.numObservations=48", "+task.env.numStates=55"])
-    assert t.terrain is None
+    assert t.ground.terrain is None
     assert int(t.sim.mj_model.geom_type[t.ground_geom]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
     obs = t.reset()
     assert obs["obs"].shape == (NUM_ENVS, 48) and obs["states"].shape == (NUM_ENVS, 55)

@@ -33,11 +33,11 @@ def main() -> None:
 
     task = isaacgymenvs_mw.make(args.task, num_envs=args.num_envs, sim_device=args.device, rl_device=args.device,
                                 headless=True, seed=args.seed, overrides=args.override)
-    if getattr(task, "terrain_levels", None) is None:
+    if getattr(task.ground, "terrain_levels", None) is None:
         raise SystemExit(f"--task {args.task} has no terrain curriculum (env.terrain.type must be heightfield)")
     policy = torch.jit.load(args.policy, map_location=args.device)
     obs = task.reset()["obs"]
-    start = task.terrain_levels.clone()
+    start = task.ground.terrain_levels.clone()
     levels = start.clone()
     ups = downs = falls = 0
     began = time.perf_counter()
@@ -46,7 +46,7 @@ def main() -> None:
             obs_dict, _, reset, extras = task.step(policy(obs))
         obs = obs_dict["obs"]
         reset = reset.bool()
-        now = task.terrain_levels
+        now = task.ground.terrain_levels
         ups += int(((now > levels) & reset).sum())
         downs += int(((now < levels) & reset).sum())
         falls += int((reset & ~extras["time_outs"].bool()).sum())

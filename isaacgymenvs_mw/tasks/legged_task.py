@@ -7,12 +7,8 @@ Joint position targets go to MuJoCo position actuators (PD) at the policy rate.
 Rewards are legged_gym's: one ``_reward_<name>`` method per term, weighted by ``rewards.scales.<name>`` times the
 policy dt; a zero scale removes the term. Everything a user would tune lives in the task YAML.
 
-With ``env.terrain.type: heightfield`` the ground is a generated grid of sub-terrains (sim/terrain.py; rows =
-difficulty levels, columns = types). Each env owns a cell (level, column) and spawns on its platform; at reset
-legged_gym's curriculum moves it a level up when it walked farther than half a cell, a level down when it walked
-less than half of what its command asked for, and to a random level once past the top. A grid of height samples
-around the base (the height scan) goes to the critic, and to the policy with ``env.terrain.measureHeights``.
-Without ``env.terrain`` (or with ``type: plane``) none of this runs: the flat tasks' code path is unchanged.
+The ground is a component (tasks/terrain_curriculum.py): flat, or with ``env.terrain.type: heightfield`` a generated
+grid of sub-terrains with legged_gym's curriculum and a height scan; the task reads both through the same methods.
 """
 
 from __future__ import annotations
@@ -22,42 +18,31 @@ from dataclasses import replace
 
 import torch
 
-from isaacgymenvs_mw.sim import (
-    HeightScan,
-    ModelRequest,
-    generate_terrain,
-    ground_geoms,
-    match_body_names,
-    match_joint_numbers,
-    match_joint_values,
-    parse_terrain_config,
-)
-from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, PER_STEP, Metric
+from isaacgymenvs_mw.sim import ModelRequest, ground_geoms, match_body_names, match_joint_numbers, match_joint_values
+from isaacgymenvs_mw.tasks.base.metrics import PER_STEP, Metric
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
+from isaacgymenvs_mw.tasks.terrain_curriculum import ground_from_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse, wrap_to_pi, yaw_from_quat
 
-# Test mode: |command - base velocity| in the horizontal plane (m/s), each step; the terrain curriculum's mean level,
-# the terrain tasks' success (their target is a level: a robot is promoted for walking its terrain).
+# Test mode: |command - base velocity| in the horizontal plane (m/s), each step.
 LIN_VEL_TRACKING_ERROR = Metric("lin_vel_tracking_error", PER_STEP)
-TERRAIN_LEVEL = Metric("terrain_level", EPISODE_SUM, success=True)
 
 
 class LeggedTask(VecTask):
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
         env = cfg["env"]
-        self._init_terrain_config(env.get("terrain"))
+        self.ground = ground_from_config(env.get("terrain"))  # before the model is built: a terrain is part of it
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self._init_joint_settings(env)
         self._init_bodies(env["asset"])
         self._init_buffers(env)
         self._init_rewards(env)
-        if self.terrain is not None:
-            self._init_terrain_state()
+        self.ground.bind(self)
         self.build_observation_layouts()
 
     # ----------------------------------------------------------------- model
@@ -73,85 +58,8 @@ class LeggedTask(VecTask):
                     sensed.append(body)
         request.contact_bodies = sensed
         self._sensed_bodies = sensed  # the rows of the contact_forces sensor
-        if self.terrain is not None:
-            if request.ground is None:
-                raise ConfigError("env.terrain.type: heightfield replaces the ground plane and takes its friction: set "
-                                 "env.plane.enabled: True (env.plane.friction is the terrain's friction)")
-            request.terrain = self.terrain
-            t = self.terrain_settings
-            scan = HeightScan(t["scanLength"], t["scanWidth"], t["scanPointsX"], t["scanPointsY"])
-            request.declared_sensors = (*request.declared_sensors, scan)
+        self.ground.add_to(request)
         return request
-
-    # ----------------------------------------------------------------- terrain
-    _TASK_TERRAIN_KEYS = {  # env.terrain keys the task reads (the generator's are in sim/terrain.TerrainConfig)
-        "curriculum": True, "maxInitLevel": 5, "spawnJitter": 0.5, "measureHeights": True,
-        "scanLength": 1.6, "scanWidth": 1.0, "scanPointsX": 17, "scanPointsY": 11, "scanHeightOffset": 0.5,
-    }
-
-    def _init_terrain_config(self, raw) -> None:
-        """``env.terrain``: None (or type plane) keeps the flat ground; heightfield generates the terrain now,
-        before the model is built."""
-        self.terrain = None
-        if raw is None:
-            return
-        raw = dict(raw)
-        task_keys = {k: raw.pop(k, default) for k, default in self._TASK_TERRAIN_KEYS.items()}
-        cfg = parse_terrain_config(raw)
-        if cfg.type == "plane":
-            return
-        self.terrain = generate_terrain(cfg)
-        self.terrain_settings = task_keys
-        top = cfg.numLevels - 1
-        if not 0 <= int(task_keys["maxInitLevel"]) <= top:
-            raise ConfigError(f"env.terrain.maxInitLevel={task_keys['maxInitLevel']} must be in [0, {top}] "
-                             f"(numLevels={cfg.numLevels})")
-        half = 0.5 * cfg.platformSize
-        if not 0.0 <= float(task_keys["spawnJitter"]) < half:
-            raise ConfigError(f"env.terrain.spawnJitter={task_keys['spawnJitter']} must be in [0, platformSize/2 = "
-                             f"{half}): robots spawn on the cell's flat platform")
-        for key in ("scanPointsX", "scanPointsY"):
-            if int(task_keys[key]) < 1:
-                raise ConfigError(f"env.terrain.{key}={task_keys[key]} must be >= 1")
-
-    def _init_terrain_state(self) -> None:
-        """Per-env cells, curriculum levels, the device height map and the height-scan points."""
-        n, dev, t, cfg = self.num_envs, self.device, self.terrain_settings, self.terrain.config
-        # What MuJoCo collides with, read back from the model: the height scan's lookup of any point (sim/sensors.py).
-        self.height_map = self.sim.sensors.get("height_scan").height_map
-        self.terrain_origins = torch.tensor(self.terrain.origins, device=dev, dtype=torch.float)
-        self.num_levels = cfg.numLevels
-        self.cell_length = cfg.mapLength
-        self.curriculum = bool(t["curriculum"])
-        init_top = int(t["maxInitLevel"]) if self.curriculum else cfg.numLevels - 1
-        self.terrain_levels = torch.randint(0, init_top + 1, (n,), device=dev)
-        # Envs spread evenly over the columns (types), legged_gym's assignment.
-        self.terrain_types = torch.div(torch.arange(n, device=dev) * cfg.numTerrains, n, rounding_mode="floor")
-        self.env_origins = self.terrain_origins[self.terrain_levels, self.terrain_types].clone()
-        self.spawn_jitter = float(t["spawnJitter"])
-        self.measure_heights = bool(t["measureHeights"])
-        self.scan_offset = float(t["scanHeightOffset"])
-        # Terrain heights under the scan points, refreshed by the step's sense phase (sim/sensors.py, HeightScan).
-        self.measured_heights = self.sim.sensor("height_scan")
-        self._curriculum_started = False  # the first (full) reset places envs; later resets move them
-
-    def _update_terrain_curriculum(self, mask: torch.Tensor) -> None:
-        """legged_gym's rule for the resetting envs: up past half a cell, down under half the commanded distance,
-        a random level once past the top."""
-        if not self.curriculum:
-            return
-        if not self._curriculum_started:  # the envs' first placement is no episode: nothing walked yet
-            self._curriculum_started = True
-            return
-        walked = torch.norm(self.sim.root_pos[:, :2] - self.env_origins[:, :2], dim=1)
-        up = walked > 0.5 * self.cell_length
-        asked = torch.norm(self.commands[:, :2], dim=1) * self.max_episode_length_s * 0.5
-        down = (walked < asked) & ~up
-        level = self.terrain_levels + up.long() - down.long()
-        level = torch.where(level >= self.num_levels, torch.randint_like(level, self.num_levels), level.clamp(min=0))
-        # A blown-up world's position is the model's initial one, not where it walked: its level stays.
-        self.terrain_levels[:] = torch.where(mask & ~self.nonfinite_buf, level, self.terrain_levels)
-        self.env_origins[:] = self.terrain_origins[self.terrain_levels, self.terrain_types]
 
     def _init_joint_settings(self, env: dict) -> None:
         names = self.sim.dof_names
@@ -264,7 +172,7 @@ class LeggedTask(VecTask):
     def observation_terms(self) -> list[ObsTerm]:
         # Sensor noise per term comes from task.randomization_params.observations.terms (randomisation layer).
         s, nj = self.obs_scales, self.num_actions
-        scan = [self._height_scan_term()] if self.terrain is not None and self.measure_heights else []
+        scan = self.ground.observation_terms(self.obs_scales, for_policy=True)
         return [
             ObsTerm("base_lin_vel", 3, s["linVel"], compute=lambda: self.base_lin_vel),  # body frame, m/s
             ObsTerm("base_ang_vel", 3, s["angVel"], compute=lambda: self.base_ang_vel),  # body frame, rad/s
@@ -277,14 +185,6 @@ class LeggedTask(VecTask):
             ObsTerm("actions", nj, compute=lambda: self.actions),
         ] + scan
 
-    def _height_scan_term(self) -> ObsTerm:
-        return ObsTerm("height_scan", self.measured_heights.shape[1], self.obs_scales["heightMeasurements"],
-                       compute=self._height_scan)
-
-    def _height_scan(self) -> torch.Tensor:
-        """Base height above each scan point minus scanHeightOffset, clipped to ±1 m (legged_gym's measurement)."""
-        return (self.sim.root_pos[:, 2:3] - self.scan_offset - self.measured_heights).clamp(-1.0, 1.0)
-
     def state_terms(self) -> list[ObsTerm]:
         # The critic sees the noiseless policy observation (the observed sensors' terms included, env.observeSensors)
         # plus what the policy cannot measure.
@@ -296,11 +196,10 @@ class LeggedTask(VecTask):
             ObsTerm("base_height", 1, compute=lambda: self.sim.root_pos[:, 2:3]),  # m
             # 1 where the foot's contact force exceeds 1 N
             ObsTerm("feet_contact", len(self.feet), compute=lambda: self._feet_contact().float()),
-        ] + ([self._height_scan_term()] if self.terrain is not None and not self.measure_heights else [])
+        ] + self.ground.observation_terms(self.obs_scales, for_policy=False)
 
     def evaluation_groups(self) -> dict[str, torch.Tensor]:
-        # Test mode reports survival and tracking per curriculum level (eval.json's per_terrain_level).
-        return {"terrain_level": self.terrain_levels} if self.terrain is not None else {}
+        return self.ground.evaluation_groups()
 
     def deployment_info(self) -> dict:
         info = super().deployment_info()
@@ -327,8 +226,7 @@ class LeggedTask(VecTask):
         self.sim.ctrl[:] = self.default_dof_pos + self.action_scale * actions
 
     def declared_metrics(self) -> list[Metric]:
-        terrain = [TERRAIN_LEVEL] if self.terrain is not None else []
-        return [*super().declared_metrics(), LIN_VEL_TRACKING_ERROR, *terrain]
+        return [*super().declared_metrics(), LIN_VEL_TRACKING_ERROR, *self.ground.metrics()]
 
     def after_reset(self, new_episode: torch.Tensor) -> None:
         # Commands run on a timer: the envs whose episode goes on draw new ones every resamplingTime_s.
@@ -370,14 +268,7 @@ class LeggedTask(VecTask):
         # Scaling the default can leave a joint's range (Go1's knee); start inside the soft limits instead.
         dof_pos = torch.clamp(dof_pos, self.soft_dof_pos_limits[:, 0], self.soft_dof_pos_limits[:, 1])
         root_vel = self.reset_root_vel_range * (2.0 * torch.rand(n, 6, device=dev) - 1.0)
-        root_pos = self.base_init_pos
-        if self.terrain is not None:
-            self._update_terrain_curriculum(mask)
-            jitter = self.spawn_jitter * (2.0 * torch.rand(n, 2, device=dev) - 1.0)
-            root_pos = self.base_init_pos + self.env_origins
-            root_pos = torch.cat((root_pos[:, :2] + jitter, root_pos[:, 2:]), dim=1)
-            # Mean level over all envs, weighted by the episodes ending now (the learner divides by their count).
-            self.metrics.record(TERRAIN_LEVEL, self.terrain_levels.float().mean() * mask.sum())
+        root_pos = self.ground.place(self, mask, self.base_init_pos)  # a terrain cell's platform, or as given
         self.sim.reset_worlds(mask)
         self.sim.write_state(mask, dof_pos=dof_pos, dof_vel=torch.zeros_like(dof_pos),
                              root_pos=root_pos, root_quat=self.base_init_quat,
@@ -534,9 +425,7 @@ class LeggedTask(VecTask):
     def _height_above_ground(self, pos: torch.Tensor) -> torch.Tensor:
         """Height (m) of points (..., 3) above the ground under them: world z on flat ground, minus the terrain's
         height there."""
-        if self.terrain is None:
-            return pos[..., 2]
-        return pos[..., 2] - self.height_map(pos[..., 0], pos[..., 1])
+        return self.ground.height_above(pos)
 
     def _base_height(self) -> torch.Tensor:
         """Base height (m) above the ground under it."""
