@@ -19,7 +19,7 @@ import json
 import torch
 from torch.profiler import ProfilerActivity, profile
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.utils.config import compose_config
 
 

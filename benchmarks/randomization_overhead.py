@@ -15,7 +15,7 @@ import time
 
 import torch
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.learning.reporting import device_description, package_versions
 from isaacgymenvs_mw.utils.config import compose_config
 from randomization_presets import PRESETS, apply

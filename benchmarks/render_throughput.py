@@ -26,7 +26,8 @@ import time
 import torch
 from throughput import _physics_rate, _rate
 
-from isaacgymenvs_mw.learning.launch import build_task, seed_run
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.learning.launch import seed_run
 from isaacgymenvs_mw.learning.reporting import device_description, package_versions
 from isaacgymenvs_mw.utils.config import compose_config
 

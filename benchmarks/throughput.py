@@ -20,7 +20,8 @@ import time
 
 import torch
 
-from isaacgymenvs_mw.learning.launch import build_task, seed_run
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.learning.launch import seed_run
 from isaacgymenvs_mw.learning.reporting import device_description, package_versions
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv

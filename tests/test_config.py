@@ -11,7 +11,8 @@ import torch
 
 import isaacgymenvs_mw
 from conftest import CPU_ARGS
-from isaacgymenvs_mw.learning.launch import build_task, run
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks import get_task_class
 from isaacgymenvs_mw.utils.config import compose_config
 

@@ -14,7 +14,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf, open_dict
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.utils.config import compose_config
 
 GO1_QUIET = ["~task.task.randomization_params.push", "~task.task.randomization_params.observations"]

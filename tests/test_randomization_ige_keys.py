@@ -13,7 +13,7 @@ import torch
 
 from omegaconf import OmegaConf, open_dict
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.utils.config import compose_config
 
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from conftest import CPU_ARGS
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.tasks import VecTask, get_task_class, isaacgym_task_map, register_task
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
 from isaacgymenvs_mw.utils.config import compose_config, to_dict

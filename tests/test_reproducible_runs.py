@@ -27,7 +27,8 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from conftest import CPU_ARGS, REPO_ROOT
 from isaacgymenvs_mw.learning import loggers
-from isaacgymenvs_mw.learning.launch import build_task, run
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 

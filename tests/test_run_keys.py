@@ -17,7 +17,8 @@ import torch
 from conftest import CPU_ARGS, REPO_ROOT, signal_at_line
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
-from isaacgymenvs_mw.learning.runner import Runner, StopRequested
+from isaacgymenvs_mw.learning.runner import Runner
+from isaacgymenvs_mw.utils.stop import StopRequested
 from isaacgymenvs_mw.utils.stop import StopProtocol
 from isaacgymenvs_mw.learning.checkpoints import check_runs_dir
 from isaacgymenvs_mw.utils.config import compose_config

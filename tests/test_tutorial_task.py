@@ -17,7 +17,8 @@ import torch
 from omegaconf import OmegaConf
 
 from conftest import CPU_ARGS, REPO_ROOT
-from isaacgymenvs_mw.learning.launch import build_task, run
+from isaacgymenvs_mw.tasks.build import build_task
+from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks import get_task_class, isaacgym_task_map
 from isaacgymenvs_mw.utils.config import compose_config
 

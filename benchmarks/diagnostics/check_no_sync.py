@@ -23,7 +23,7 @@ import traceback
 
 import torch
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import compose_config, to_dict

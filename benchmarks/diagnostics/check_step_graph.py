@@ -37,7 +37,7 @@ from pathlib import Path
 import torch
 import torch._inductor.config
 
-from isaacgymenvs_mw.learning.launch import build_task
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, RUNNING
 from isaacgymenvs_mw.utils.config import compose_config
 

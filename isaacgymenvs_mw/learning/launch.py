@@ -20,7 +20,7 @@ from isaacgymenvs_mw.learning.sweep import evaluation_outputs
 from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
 from isaacgymenvs_mw.learning.training_run import TrainingRun, episode_metrics
 from isaacgymenvs_mw.learning.vecenv import success_metric_key, training_metric_keys
-from isaacgymenvs_mw.tasks.build import build_task  # noqa: F401  (also imported from here by benchmarks and tests)
+from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.learning.checkpoints import check_runs_dir
 from isaacgymenvs_mw.utils.config import check_run_config, time_budget, to_dict
 from isaacgymenvs_mw.utils.device import resolve_device

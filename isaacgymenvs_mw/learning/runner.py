@@ -30,7 +30,6 @@ from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.files import atomic_save
-from isaacgymenvs_mw.utils.stop import StopRequested  # noqa: F401  (imported from here too)
 
 
 def rsl_rl_config(train_cfg: dict) -> dict:

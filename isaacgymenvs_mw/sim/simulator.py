@@ -19,7 +19,6 @@ import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.cameras import CameraSpec
 from isaacgymenvs_mw.sim.velocity_limit import AngularSpeedLimit
-from isaacgymenvs_mw.sim.divergence import DIVERGED_SPEED, EQUALITY_DIVERGED  # noqa: F401 (their old home)
 from isaacgymenvs_mw.sim.forces import BodyForceRequests, BodyForces
 from isaacgymenvs_mw.sim.graph_engine import GraphEngine
 from isaacgymenvs_mw.sim.kernels import init_warp
