@@ -24,6 +24,7 @@ from isaacgymenvs_mw.tasks.franka_cube_stack import FrankaCubeStack
 from isaacgymenvs_mw.tasks.g1 import G1
 from isaacgymenvs_mw.tasks.go1 import Go1
 from isaacgymenvs_mw.tasks.humanoid import Humanoid
+from isaacgymenvs_mw.tasks.ingenuity import Ingenuity
 from isaacgymenvs_mw.tasks.quadcopter import Quadcopter
 from isaacgymenvs_mw.tasks.shadow_hand import ShadowHand
 from isaacgymenvs_mw.utils.errors import UnknownNameError
@@ -47,6 +48,7 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "Go1": Go1,
     "Go1Terrain": Go1,
     "Humanoid": Humanoid,
+    "Ingenuity": Ingenuity,
     "Quadcopter": Quadcopter,
     "ShadowHand": ShadowHand,
     "ShadowHandOpenAI_FF": ShadowHand,  # same class; cfg/task/ShadowHandOpenAI_FF.yaml: OpenAI's setting

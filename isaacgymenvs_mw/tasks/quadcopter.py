@@ -18,6 +18,7 @@ meaning and the model's actuators are only the 8 joint drives.
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import torch
 
@@ -55,11 +56,7 @@ class Quadcopter(VecTask):
         self.rotor_bodies = list(env.get("rotorBodies", ROTOR_BODIES))
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
-        missing = [b for b in self.rotor_bodies if b not in self.sim.body_names]
-        if len(self.rotor_bodies) != 4 or missing:
-            raise ConfigError(
-                f"env.rotorBodies={self.rotor_bodies} is invalid: give the 4 rotor bodies of the asset "
-                f"({env['asset']['assetFileName']}); not in the model: {missing}; its bodies: {self.sim.body_names[1:]}")
+        check_rotor_bodies(self.rotor_bodies, 4, self.sim.body_names, env)
         n, dev = self.num_envs, self.device
         self.dof_lower_limits, self.dof_upper_limits = self.sim.joint_limits()
         self.dof_position_targets = torch.zeros((n, 8), device=dev)
@@ -112,12 +109,8 @@ class Quadcopter(VecTask):
             self.metrics.record(TARGET_DISTANCE, torch.linalg.norm(self.sim.root_pos - self.target, dim=-1))
 
     def observation_terms(self) -> list[ObsTerm]:
-        sim = self.sim
-        return [ObsTerm("target_offset", 3, scale=1.0 / 3.0, compute=lambda: self.target - sim.root_pos),  # m
-                ObsTerm("root_quat", 4, compute=lambda: sim.root_quat),                   # (w, x, y, z)
-                ObsTerm("root_lin_vel", 3, scale=0.5, compute=lambda: sim.root_lin_vel),  # m/s, world frame
-                ObsTerm("root_ang_vel", 3, scale=1.0 / math.pi, compute=sim.root_ang_vel_world),  # rad/s, world
-                ObsTerm("dof_pos", 8, compute=lambda: sim.dof_pos)]                      # rad
+        return [*flight_terms(self.sim, lambda: self.target),
+                ObsTerm("dof_pos", 8, compute=lambda: self.sim.dof_pos)]                 # rad
 
     def reset_idx(self, mask: torch.Tensor) -> None:
         n, dev = self.num_envs, self.device
@@ -157,3 +150,22 @@ def compute_quadcopter_reward(root_pos: torch.Tensor, root_quat: torch.Tensor, r
     spin = torch.abs(root_ang_vel[:, 2])
     spin_reward = 1.0 / (1.0 + spin * spin)
     return pos_reward + pos_reward * (up_reward + spin_reward)
+
+
+def check_rotor_bodies(bodies: list[str], count: int, body_names: list[str], env: dict) -> None:
+    """``env.rotorBodies``: the ``count`` bodies of the asset that the thrusts push (a flying task's), else one line
+    naming them and the model's bodies."""
+    missing = [b for b in bodies if b not in body_names]
+    if len(bodies) != count or missing:
+        raise ConfigError(
+            f"env.rotorBodies={bodies} is invalid: give the {count} rotor bodies of the asset "
+            f"({env['asset']['assetFileName']}); not in the model: {missing}; its bodies: {body_names[1:]}")
+
+
+def flight_terms(sim, target: Callable[[], torch.Tensor]) -> list[ObsTerm]:
+    """IsaacGymEnvs' flying tasks' observation: the offset to ``target()`` / 3, the root quaternion, and the world-frame
+    linear velocity / 2 and angular velocity / pi of the root body."""
+    return [ObsTerm("target_offset", 3, scale=1.0 / 3.0, compute=lambda: target() - sim.root_pos),  # m
+            ObsTerm("root_quat", 4, compute=lambda: sim.root_quat),                   # (w, x, y, z)
+            ObsTerm("root_lin_vel", 3, scale=0.5, compute=lambda: sim.root_lin_vel),  # m/s, world frame
+            ObsTerm("root_ang_vel", 3, scale=1.0 / math.pi, compute=sim.root_ang_vel_world)]  # rad/s, world
