@@ -18,12 +18,8 @@ from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME
 from isaacgymenvs_mw.tasks.build import build_task
-from isaacgymenvs_mw.tasks.franka_cube_stack import (
-    cube_stack_terms,
-    grasp_terms,
-    osc_torques,
-    sample_cubes,
-)
+from isaacgymenvs_mw.tasks.arm_control import osc_torques
+from isaacgymenvs_mw.tasks.franka_cube_stack import cube_stack_terms, grasp_terms, sample_cubes
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_matrix

@@ -15,17 +15,8 @@ Reward (``env.reward.kind``):
     is on B with the grasp point 4 cm away from it, which ends the episode), plus this project's grasp shaping
     (``graspRewardScale``, ``liftHeightRewardScale``; 0 gives IGE's reward exactly).
 
-Control (``env.controlType``):
-  * ``joint_pos`` (default): the 7 arm servo targets move by ``actionScale x control dt x a`` per step, clamped to
-    the joint ranges (as FrankaCabinet);
-  * ``joint_tor``: the arm joints' torques are ``a x`` their limits (87 / 12 N m), IsaacGymEnvs' joint_tor, by
-    rewriting the MJCF's arm servos as motors (``env.control.driveMode: {'joint[1-7]': effort}``);
-  * ``osc``: IsaacGymEnvs' operational-space control. The first 6 actions x ``oscCommandLimit`` are a pose error of
-    the grasp frame (m, rad; world axes), turned into arm torques through the task-space inertia from the mass
-    matrix and the grasp site's Jacobian (``sim.dynamics.SiteDynamics``), plus a null-space pull toward
-    ``startDofPos``; gains ``oscKp`` and ``oscKpNull``, critically damped (kd = 2 sqrt(kp)), as IGE.
-  The last action is the gripper in every mode: >= 0 opens the fingers (0.04 m each), < 0 closes them (8 actions
-  in joint_pos and joint_tor, IGE's 7 in osc).
+Control (``env.controlType``: ``joint_pos``, the default, ``joint_tor`` or IsaacGymEnvs' ``osc``) is a component,
+tasks/arm_control.py; the last action is the gripper in every mode (8 actions in the joint modes, IGE's 7 in osc).
 
 Differences from IsaacGymEnvs, on purpose: cube B rests on the table (IGE spawns it with cube A's half-size, 1 cm
 into the table); quaternions are MuJoCo's (w, x, y, z), IGE's (x, y, z, w); positions are in the robot's base
@@ -41,10 +32,10 @@ import math
 
 import torch
 
-from isaacgymenvs_mw.sim.dynamics import SiteDynamics
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, Metric
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
+from isaacgymenvs_mw.tasks.arm_control import arm_control
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import (
     CUBE_A_SIZE,
@@ -55,18 +46,14 @@ from isaacgymenvs_mw.tasks.franka import (
     approach_term,
     fingertips,
     grasp_terms,
-    gripper_command,
-    joint_pos_targets_delta,
     noisy_start_pose,
     privileged_terms,
 )
 from isaacgymenvs_mw.utils.config import boolean, one_of
 from isaacgymenvs_mw.utils.errors import ConfigError
-from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw, wrap_to_pi
+from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw
 
-CONTROL_TYPES = ("joint_pos", "joint_tor", "osc")
 REWARD_KINDS = ("staged", "isaacgymenvs")  # env.reward.kind; the YAML's default is the first
-TORQUE_CONTROL = ("joint_tor", "osc")  # the arm's actuators are torque motors
 # env keys of the task YAML that are plain numbers
 _NUMBER_KEYS = ("actionScale", "frankaDofNoise", "startPositionNoise", "startRotationNoise")
 # reward term -> the env key of its scale (IsaacGymEnvs' names)
@@ -113,11 +100,7 @@ class FrankaCubeStack(VecTask):
             raise ConfigError(f"FrankaCubeStack: the task YAML's env section lacks {missing}")
         if self.reward_kind == "staged":
             self.stage_levels = stage_levels(env["reward"]["stageLevels"], "env.reward.stageLevels")
-        self.control_type = control_type(env.get("controlType", "joint_pos"))
-        if self.control_type in TORQUE_CONTROL:
-            # The MJCF's arm servos become torque motors (same names and ctrl columns, force capped at 87 / 12 N m).
-            control = env.setdefault("control", {})
-            control["driveMode"] = {**dict(control.get("driveMode") or {}), "joint[1-7]": "effort"}
+        self.control = arm_control(env)  # env.controlType (tasks/arm_control.py), before the model is built
         self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
         # True: the critic also reads what the simulator knows (franka.privileged_terms)
         self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
@@ -126,9 +109,6 @@ class FrankaCubeStack(VecTask):
         self.arm = FrankaArm(self.sim, "FrankaCubeStack")
         self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         self.cube_a, self.cube_b = self.sim.asset("cubeA"), self.sim.asset("cubeB")
-        m = self.sim.mj_model
-        self.torque_limit = torch.tensor(m.actuator_forcerange[:7, 1], dtype=torch.float32, device=self.device)
-        self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1 (joint_pos)
         self.table_centre = torch.tensor([*TABLE_CENTRE_XY], device=self.device)
         if self.reward_kind == "staged":
             scales = {"staged": 1.0}  # one term, already within 0 ... 1
@@ -139,45 +119,22 @@ class FrankaCubeStack(VecTask):
                                    self.device, key="env")
         self.terms: dict[str, torch.Tensor] = {}
         self.furthest_stage = torch.zeros(self.num_envs, device=self.device)  # this episode's, staged reward
-        if self.control_type == "osc":
-            self._init_osc(env)
+        self.control.bind(self)
         self.build_observation_layouts()
-
-    def _init_osc(self, env: dict) -> None:
-        limit = [float(v) for v in env.get("oscCommandLimit", ())]
-        if len(limit) != 6 or min(limit) <= 0:
-            raise ConfigError(f"env.oscCommandLimit={env.get('oscCommandLimit')!r} is invalid: give 6 numbers > 0 "
-                              "(the largest commanded pose error along x, y, z (m) and about them (rad))")
-        self.osc_command_limit = torch.tensor(limit, device=self.device)
-        self.osc_kp, self.osc_kp_null = float(env["oscKp"]), float(env["oscKpNull"])
-        self.dynamics = SiteDynamics(self.sim, self.arm.grasp_site, range(7))
 
     # ------------------------------------------------------------------ pre-physics
     def check_action_size(self) -> None:
         # osc: IGE's 7 actions (a 6-component pose error and the gripper) drive the 8 actuators through the law
-        if self.control_type != "osc":
+        wanted = self.control.action_count()
+        if wanted is None:
             return super().check_action_size()
-        if self.num_actions != 7:
+        if self.num_actions != wanted:
             raise ConfigError(f"FrankaCubeStack: task.env.numActions={self.num_actions} is invalid with "
-                              "controlType=osc: give 7 (6 pose-error components and the gripper, IGE's)")
+                              f"controlType={self.control.kind}: give {wanted} (6 pose-error components and the "
+                              "gripper, IGE's)")
 
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        grip = gripper_command(actions[:, -1])
-        if self.control_type == "joint_pos":
-            self.arm.move_targets(joint_pos_targets_delta(actions, self.arm, self.arm_step))
-        elif self.control_type == "joint_tor":
-            self.sim.ctrl[:, :7] = actions[:, :7] * self.torque_limit
-            self.sim.ctrl[:, 7] = grip
-        else:  # osc: the torques for this step's pose error, held over the step's physics substeps (as IGE)
-            q, qd = self.sim.dof_pos[:, :7], self.sim.dof_vel[:, :7]
-            torques = osc_torques(actions[:, :6] * self.osc_command_limit, q, qd, self.start_dof_pos[:7],
-                                  self.dynamics.mass_matrix(), self.dynamics.jacobian(), self.osc_kp,
-                                  self.osc_kp_null)
-            # A singular pose can make the unchecked inverses NaN: that world gets no arm torque for this step (a
-            # NaN command would reach the learner through the next state; rare, about once in a thousand iterations).
-            torques = torch.nan_to_num(torques, nan=0.0)
-            self.sim.ctrl[:, :7] = torch.clamp(torques, -self.torque_limit, self.torque_limit)
-            self.sim.ctrl[:, 7] = grip
+        self.control.apply(actions)
 
     # ------------------------------------------------------------------ post-physics
     def refresh_state(self) -> None:
@@ -244,11 +201,7 @@ class FrankaCubeStack(VecTask):
                          compute=lambda: self.cube_b.root_pos - self.cube_a.root_pos),  # m, B - A
                  ObsTerm("grasp_pos", 3, compute=self.arm.grasp_pos),                 # m, between the fingertips
                  ObsTerm("grasp_quat", 4, compute=grasp_quat)]                        # (w, x, y, z)
-        if self.control_type == "osc":  # IGE's osc observation: the fingers only (m)
-            terms.append(ObsTerm("finger_pos", 2, compute=lambda: self.sim.dof_pos[:, 7:9]))
-        else:  # joint modes: all 9 joint positions (rad; fingers m), IsaacGymEnvs' joint_tor observation
-            terms.append(ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos))
-        return terms
+        return terms + self.control.observation_terms()  # the joints (joint modes) or the fingers (osc)
 
     def state_terms(self) -> list[ObsTerm] | None:
         # env.asymmetric_observations: the policy's observation and the privileged terms, for the critic
@@ -265,8 +218,7 @@ class FrankaCubeStack(VecTask):
         dof_pos = noisy_start_pose(self.start_dof_pos, self.env_numbers["frankaDofNoise"], self.arm, n)
         self.sim.reset_worlds(mask)
         self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
-        if self.control_type in TORQUE_CONTROL:  # the arm's ctrl columns are torques: none in a new episode
-            self.sim.ctrl[:, :7].masked_fill_(mask.unsqueeze(1), 0.0)
+        self.control.on_reset(mask)
         pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.env_numbers["startPositionNoise"],
                                                     self.env_numbers["startRotationNoise"], dev)
         zero = torch.zeros_like(pos_a)
@@ -290,11 +242,6 @@ def stage_levels(value: object, key: str) -> tuple[float, ...]:
         raise ConfigError(f"{key}={shown!r} is invalid: give {len(STAGES)} numbers, one per stage {list(STAGES)}, "
                           "the first >= 0 and each at least 1 above the one before (a stage pays its number + 0 ... 1)")
     return tuple(float(v) for v in numbers)
-
-
-def control_type(value: object) -> str:
-    """``env.controlType``, checked: one of CONTROL_TYPES."""
-    return one_of(value, "env.controlType", CONTROL_TYPES)
 
 
 def sample_cubes(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float,
@@ -386,27 +333,3 @@ def staged_stack_reward(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch
         reward = torch.where(reached, level + progress, reward)
         stage = torch.where(reached, index, stage)
     return reward / levels[STACKED], stage
-
-
-def osc_torques(pose_error: torch.Tensor, q: torch.Tensor, qd: torch.Tensor, q_rest: torch.Tensor,
-                mass: torch.Tensor, jacobian: torch.Tensor, kp: float, kp_null: float) -> torch.Tensor:
-    """IsaacGymEnvs' operational-space control law: arm torques (N, k) that pull the end effector by ``pose_error``
-    (N, 6) with stiffness ``kp`` and critical damping, plus a null-space pull toward ``q_rest``.
-
-    tau = J^T Lambda (kp e - kd J qd) + (I - J^T Jbar^T) M (kp_null (q_rest - q) - kd_null qd), Lambda = (J M^-1
-    J^T)^-1, Jbar^T = Lambda J M^-1, kd = 2 sqrt(kp). Inverses without error checks (``inv_ex``): a check would wait
-    on the GPU; a singular arm pose gives large, clamped torques for that step, not a stall.
-    """
-    kd, kd_null = 2.0 * math.sqrt(kp), 2.0 * math.sqrt(kp_null)
-    mass_inv = torch.linalg.inv_ex(mass)[0]
-    jt = jacobian.transpose(1, 2)
-    task_inertia = torch.linalg.inv_ex(jacobian @ mass_inv @ jt)[0]  # (N, 6, 6)
-    eef_vel = (jacobian @ qd.unsqueeze(-1)).squeeze(-1)
-    force = (kp * pose_error - kd * eef_vel).unsqueeze(-1)
-    torque = jt @ (task_inertia @ force)
-    # The pull toward the rest pose (wrapped to (-pi, pi]), in the null space of the task: it does not move the hand.
-    rest = kp_null * wrap_to_pi(q_rest - q) - kd_null * qd
-    jbar_t = task_inertia @ jacobian @ mass_inv  # (N, 6, k)
-    eye = torch.eye(q.shape[1], device=q.device, dtype=q.dtype).expand_as(mass)
-    torque = torque + (eye - jt @ jbar_t) @ (mass @ rest.unsqueeze(-1))
-    return torque.squeeze(-1)
