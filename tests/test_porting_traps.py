@@ -104,19 +104,6 @@ def test_with_the_step_never_captured_the_counter_is_not_reported():
             task.step(task.zero_actions())
 
 
-@pytest.mark.parametrize("name", ["Cartpole", "Quadcopter", "BallBalance", "Anymal", "Ant"])
-def test_shipped_tasks_keep_no_python_state_in_their_step(name):
-    from isaacgymenvs_mw.tasks.base.python_state import PythonStateWarning
-
-    task = build_task(compose_config([f"task={name}", "num_envs=2", *CPU_ARGS]))
-    task.reset()
-    assert task.execution.python_state is not None  # watched
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", PythonStateWarning)
-        for _ in range(5):
-            task.step(task.zero_actions())
-
-
 # ------------------------------------------------------------------ MUJOCO_GL naming a backend that cannot load
 # Loaded by Python at start-up (sitecustomize on PYTHONPATH): the dynamic loader finds no libOSMesa, as on a machine
 # without the package, whether or not this one has it.
