@@ -172,34 +172,33 @@ def _smoke(name: str) -> None:
         _check_step(task, task.step(a), image_shape, f"step {k + 1} ({kind} actions)")
 
     # Reset env 0 through reset_buf + reset_done(): its clock restarts, env 1 is untouched.
-    _mid_episode(task, 0, image_shape)
-    _mid_episode(task, 1, image_shape)
-    progress = task.progress_buf.clone()
-    q1, v1 = _state(task, 1)
-    task.reset_buf.zero_()
-    task.reset_buf[0] = 1
-    obs_dict, ids = task.reset_done()
-    assert ids.tolist() == [0]
-    _check_obs_dict(task, obs_dict, image_shape, "reset_done()")
-    assert int(task.progress_buf[0]) == 0
-    assert int(task.progress_buf[1]) == int(progress[1])
-    q, v = _state(task, 1)
-    np.testing.assert_array_equal(q, q1, err_msg="reset_done() of env 0 moved env 1")
-    np.testing.assert_array_equal(v, v1, err_msg="reset_done() of env 0 moved env 1")
+    def reset_env_0() -> None:
+        task.reset_buf.zero_()
+        task.reset_buf[0] = 1
+        obs_dict, ids = task.reset_done()
+        assert ids.tolist() == [0]
+        _check_obs_dict(task, obs_dict, image_shape, "reset_done()")
 
+    _reset_one_env(task, 0, reset_env_0, image_shape, "reset_done() of env 0")
     # ...and env 1 through reset_envs with IsaacGymEnvs' index tensor, after one more step.
     _check_step(task, task.step(task.zero_actions()), image_shape, "step after reset_done()")
+    _reset_one_env(task, 1, lambda: task.reset_envs(torch.tensor([1])), image_shape, "reset_envs([1])")
+    _check_step(task, task.step(task.zero_actions()), image_shape, "step after reset_envs()")
+
+
+def _reset_one_env(task, env: int, reset, image_shape, how: str) -> None:
+    """Both envs mid-episode, then ``reset()`` of ``env``: its clock restarts, the other env's clock and state stay."""
+    other = 1 - env
     _mid_episode(task, 0, image_shape)
     _mid_episode(task, 1, image_shape)
     progress = task.progress_buf.clone()
-    q0, v0 = _state(task, 0)
-    task.reset_envs(torch.tensor([1]))
-    assert int(task.progress_buf[1]) == 0
-    assert int(task.progress_buf[0]) == int(progress[0])
-    q, v = _state(task, 0)
-    np.testing.assert_array_equal(q, q0, err_msg="reset_envs([1]) moved env 0")
-    np.testing.assert_array_equal(v, v0, err_msg="reset_envs([1]) moved env 0")
-    _check_step(task, task.step(task.zero_actions()), image_shape, "step after reset_envs()")
+    q_before, v_before = _state(task, other)
+    reset()
+    assert int(task.progress_buf[env]) == 0
+    assert int(task.progress_buf[other]) == int(progress[other])
+    q, v = _state(task, other)
+    np.testing.assert_array_equal(q, q_before, err_msg=f"{how} moved env {other}")
+    np.testing.assert_array_equal(v, v_before, err_msg=f"{how} moved env {other}")
 
 
 # Registered in a fresh interpreter: the package's task map as imported, then what each examples/ module that

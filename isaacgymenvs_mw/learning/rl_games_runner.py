@@ -425,8 +425,9 @@ class RlGamesLearner(Learner):
     name = LEARNER
 
     def check(self) -> None:
-        check_train_config(to_dict(self.cfg.train), self.cfg.get("learner"))
-        self._max_epochs = int(to_dict(self.cfg.train)["params"]["config"].get("max_epochs", -1))
+        train_cfg = to_dict(self.cfg.train)
+        check_train_config(train_cfg, self.cfg.get("learner"))
+        self._max_epochs = int(train_cfg["params"]["config"].get("max_epochs", -1))
         if self._max_epochs < 0:
             raise ConfigError(f"train.params.config.max_epochs={self._max_epochs} is invalid: give the iterations to "
                               "train (or max_iterations=N on the command line)")
