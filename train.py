@@ -26,6 +26,10 @@ from isaacgymenvs_mw.utils.stop import PROCESS_STOP  # noqa: E402  (standard lib
 # trains, with its checkpoint and summary (isaacgymenvs_mw/utils/stop.py). Before this line they end it silently.
 PROCESS_STOP.install()
 
+from isaacgymenvs_mw.utils.compile_cache import use_cache_folder  # noqa: E402  (standard library only)
+
+use_cache_folder()  # ISAACGYMENVS_MW_CACHE: every compile cache in one folder, set before torch and Warp read them
+
 import hydra  # noqa: E402
 from omegaconf import DictConfig  # noqa: E402
 

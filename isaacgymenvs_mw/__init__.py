@@ -27,12 +27,14 @@ def make(
     the package is imported with ``overrides=["task_module=my_tasks"]`` (the module must be importable).
     """
     from isaacgymenvs_mw.tasks.build import build_task
+    from isaacgymenvs_mw.utils.compile_cache import use_cache_folder
     from isaacgymenvs_mw.utils.config import compose_config
     from isaacgymenvs_mw.utils.seeding import set_seed
 
     args = [f"task={task}", f"sim_device={sim_device}", f"rl_device={rl_device}", f"headless={headless}"]
     if num_envs is not None:
         args.append(f"num_envs={num_envs}")
+    use_cache_folder()  # ISAACGYMENVS_MW_CACHE, as train.py reads it
     cfg = compose_config([*args, *overrides], config_dir=config_dir)
     if seed is not None:
         set_seed(seed)

@@ -23,6 +23,7 @@ import time
 from dataclasses import dataclass
 from typing import Sequence
 
+from isaacgymenvs_mw.utils.compile_cache import use_cache_folder
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP
 
@@ -46,8 +47,8 @@ def count_files(path: str) -> int:
 
 def cache_folders(sim_device: str) -> list[CacheFolder]:
     """The folders a training run compiles into, as this process sees them: Warp's kernel cache, TorchInductor's
-    cache, and the one its Triton kernels go to (``TRITON_CACHE_DIR``; by default a ``triton`` folder inside
-    Inductor's)."""
+    cache, the one its Triton kernels go to (``TRITON_CACHE_DIR``; by default a ``triton`` folder inside Inductor's)
+    and the CUDA driver's JIT cache (``CUDA_CACHE_PATH``; by default ``~/.nv/ComputeCache``)."""
     from torch._inductor.runtime.cache_dir_utils import default_cache_dir
 
     from isaacgymenvs_mw.sim.kernels import kernel_cache_dir
@@ -55,7 +56,9 @@ def cache_folders(sim_device: str) -> list[CacheFolder]:
 
     inductor = os.path.abspath(os.environ.get("TORCHINDUCTOR_CACHE_DIR") or default_cache_dir())
     folders = {"WARP_CACHE_PATH": kernel_cache_dir(resolve_device(sim_device, "sim_device")), "TORCHINDUCTOR_CACHE_DIR": inductor,
-               "TRITON_CACHE_DIR": os.environ.get("TRITON_CACHE_DIR") or os.path.join(inductor, "triton")}
+               "TRITON_CACHE_DIR": os.environ.get("TRITON_CACHE_DIR") or os.path.join(inductor, "triton"),
+               "CUDA_CACHE_PATH": os.path.abspath(os.environ.get("CUDA_CACHE_PATH")
+                                                  or os.path.expanduser(os.path.join("~", ".nv", "ComputeCache")))}
     return [CacheFolder(variable, path, count_files(path)) for variable, path in folders.items()]
 
 
@@ -97,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     from isaacgymenvs_mw.utils.cli_errors import exit_on_input_error
 
     PROCESS_STOP.install()  # SIGINT / SIGTERM: one line and the signal's status, whatever is compiling
+    use_cache_folder()  # ISAACGYMENVS_MW_CACHE: the one folder to ship (utils/compile_cache.py)
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         with exit_on_input_error("warmup"):

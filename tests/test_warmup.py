@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 import warnings
@@ -21,16 +22,24 @@ from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.warmup import task_names
 
 LINE = re.compile(r"\[warmup\] Cartpole: warmed up in [\d.]+ s; WARP_CACHE_PATH=(\S+) \(\+(\d+) files\), "
-                  r"TORCHINDUCTOR_CACHE_DIR=(\S+) \(\+(\d+) files\), TRITON_CACHE_DIR=(\S+) \(\+(\d+) files\)")
+                  r"TORCHINDUCTOR_CACHE_DIR=(\S+) \(\+(\d+) files\), TRITON_CACHE_DIR=(\S+) \(\+(\d+) files\), "
+                  r"CUDA_CACHE_PATH=(\S+) \(\+(\d+) files\)")
+CACHE_VARIABLES = ("WARP_CACHE_PATH", "TORCHINDUCTOR_CACHE_DIR", "TRITON_CACHE_DIR", "CUDA_CACHE_PATH")
 
 
-def warm_up(tmp: Path, *overrides: str) -> subprocess.CompletedProcess:
+def command_env(**variables: str) -> dict[str, str]:
+    """The test process's environment without any compile cache variable, plus ``variables``."""
+    env = {k: v for k, v in os.environ.items() if k not in (*CACHE_VARIABLES, "ISAACGYMENVS_MW_CACHE")}
+    return {**env, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1",
+            "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT), os.environ.get("PYTHONPATH")])), **variables}
+
+
+def warm_up(tmp: Path, *overrides: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     work = tmp / "work"
     work.mkdir(exist_ok=True)
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1", "WARP_CACHE_PATH": str(tmp / "warp"),
-           "TORCHINDUCTOR_CACHE_DIR": str(tmp / "inductor"),
-           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT), os.environ.get("PYTHONPATH")]))}
-    env.pop("TRITON_CACHE_DIR", None)
+    if env is None:
+        env = command_env(WARP_CACHE_PATH=str(tmp / "warp"), TORCHINDUCTOR_CACHE_DIR=str(tmp / "inductor"),
+                          CUDA_CACHE_PATH=str(tmp / "cuda"))
     return subprocess.run([sys.executable, "-m", "isaacgymenvs_mw.warmup", *CPU_ARGS, *overrides], cwd=work,
                           capture_output=True, text=True, timeout=900, env=env)
 
@@ -53,6 +62,7 @@ def test_warm_up_fills_warps_cache_once_and_writes_no_run(tmp_path):
     # is what the folder gained: all of it, the folder having been empty.
     assert Path(report[1]).parent == warp_cache and int(report[2]) == len(filled)
     assert report[3] == str(tmp_path / "inductor") and report[5] == str(tmp_path / "inductor" / "triton")
+    assert report[7] == str(tmp_path / "cuda")
     # Every module the step uses was compiled, none read back (Warp's own account, sim/kernels.py's line).
     kernels = re.search(r"Warp kernels on cpu: (\d+) modules ready in [\d.]+ s \((\d+) compiled on", first.stdout)
     assert kernels and kernels[1] == kernels[2], first.stdout
@@ -82,6 +92,32 @@ def test_warm_up_fills_warps_cache_once_and_writes_no_run(tmp_path):
             warnings.warn(f"issue 61: the warm-up with num_envs={num_envs} compiled {account[2]} module(s) again; "
                           f"new files: {sorted(set(now) - set(filled))}")
     assert not (tmp_path / "runs").exists() and list((tmp_path / "work").iterdir()) == []
+
+
+def test_a_warmed_up_cache_folder_copied_to_another_place_serves_a_run_that_compiles_nothing(tmp_path):
+    # ISAACGYMENVS_MW_CACHE alone: the warm-up puts every cache into subfolders of it.
+    shipped = tmp_path / "build_machine" / "cache"
+    first = warm_up(tmp_path, "task=Cartpole", "num_envs=4", env=command_env(ISAACGYMENVS_MW_CACHE=str(shipped)))
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-3000:]
+    report = LINE.search(first.stdout)
+    assert report, first.stdout
+    named = [Path(report[i]) for i in (1, 3, 5, 7)]
+    assert named[0].is_relative_to(shipped / "warp") and int(report[2]) > 0
+    assert named[1:] == [shipped / "inductor", shipped / "triton", shipped / "cuda"]
+    # Copied to another place, the original gone: nothing can be read from where it was made.
+    copy = tmp_path / "fresh_machine" / "cache"
+    shutil.copytree(shipped, copy)
+    shutil.rmtree(shipped)
+    kept = files_under(copy)
+    run = subprocess.run([sys.executable, str(REPO_ROOT / "train.py"), "task=Cartpole", *CPU_ARGS, "num_envs=4",
+                          "max_iterations=1", f"runs_dir={tmp_path / 'runs'}"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=900, env=command_env(ISAACGYMENVS_MW_CACHE=str(copy)))
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
+    # Warp's own account: every module read back from the copy, none compiled; and no cache file added or rewritten.
+    account = re.search(r"Warp kernels on cpu: \d+ modules ready in [\d.]+ s \(all from the cache (\S+)\)", run.stdout)
+    assert account and Path(account[1]).is_relative_to(copy / "warp"), run.stdout
+    assert files_under(copy) == kept
+    assert not shipped.exists()
 
 
 def test_an_unknown_task_stops_the_warm_up_before_any_task_is_built(tmp_path):
