@@ -15,8 +15,10 @@ run). For each it reports, from the moment the process was started:
 --compile_step_off measures the same again with ``+task.sim.compileStep=False`` (its own empty caches, then warm):
 an uncompiled step starts sooner and steps slower, and over ``--iterations`` the totals say which wins.
 --after_warmup also measures a start after ``python -m isaacgymenvs_mw.warmup`` (the same task, num_envs and device)
-filled empty caches of its own: the warm-up's seconds (``warmup_s``), then one run on what it left, whose
-``first_iteration_s`` is what a container image or cluster node prepared by the warm-up gives.
+filled an empty cache folder of its own: the warm-up's seconds (``warmup_s``), then the folder is moved to another
+place and one run starts on it, whose ``first_iteration_s`` is what a shipped cache gives a fresh machine.
+Every process gets its caches through ISAACGYMENVS_MW_CACHE (utils/compile_cache.py): Warp's, Inductor's, Triton's
+and the CUDA driver's, so that a cold run finds none of the machine's own.
 --profile_dir DIR also runs each under cProfile (DIR/cold.prof, DIR/warm1.prof, ...) to break the start-up down;
 the profiler slows Python-heavy phases, so take the times above from a run without it.
 Prints one JSON object: ``summary`` (the headline seconds of every run), then each run in full. The caches live in
@@ -32,11 +34,14 @@ import argparse
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from isaacgymenvs_mw.utils.compile_cache import SUBFOLDERS
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FIRST_ITERATION = re.compile(r"^\[it\s+\d+/\d+\]")
@@ -65,9 +70,10 @@ def phases(lines: list[str]) -> dict:
 
 
 def cache_env(cache: Path) -> dict[str, str]:
-    """The environment of a measured process: its Warp, Inductor and Triton caches in folders under ``cache``."""
-    return {**os.environ, "PYTHONUNBUFFERED": "1", "WARP_CACHE_PATH": str(cache / "warp"),
-            "TORCHINDUCTOR_CACHE_DIR": str(cache / "inductor"), "TRITON_CACHE_DIR": str(cache / "triton")}
+    """The environment of a measured process: every compile cache (Warp's, Inductor's, Triton's and the CUDA
+    driver's) in a folder under ``cache`` (ISAACGYMENVS_MW_CACHE), none of the machine's own."""
+    env = {k: v for k, v in os.environ.items() if k not in SUBFOLDERS}
+    return {**env, "PYTHONUNBUFFERED": "1", "ISAACGYMENVS_MW_CACHE": str(cache)}
 
 
 def timed_warmup(args: argparse.Namespace, cache: Path) -> dict:
@@ -88,10 +94,15 @@ def timed_warmup(args: argparse.Namespace, cache: Path) -> dict:
 
 
 def after_warmup(args: argparse.Namespace, cache: Path, runs: Path) -> dict:
-    """A warm-up on empty caches of its own, then one run on what it left."""
+    """A warm-up on an empty cache folder of its own, the folder then moved elsewhere (as if shipped to another
+    machine: nothing left where it was made), then one run on the moved folder."""
+    built, shipped = cache / "built", cache / "shipped"
     if cache.exists() and any(cache.iterdir()):
         sys.exit(f"{cache} is not empty: the warm-up needs empty caches (--cache_dir)")
-    return {"warmup": timed_warmup(args, cache), "run": timed_run(args, cache, runs, "after_warmup")}
+    warmup = timed_warmup(args, built)
+    shutil.copytree(built, shipped)
+    shutil.rmtree(built)
+    return {"warmup": warmup, "run": timed_run(args, shipped, runs, "after_warmup")}
 
 
 def timed_run(args: argparse.Namespace, cache: Path, runs: Path, name: str, overrides: tuple[str, ...] = ()) -> dict:

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Train jobs side by side, one per GPU, each for a fixed training time, then evaluate its best and last checkpoints
-# in test mode on 1024 envs. Each job gets its own Warp, Inductor and Triton caches (a cold start, as on a new node).
+# in test mode on 1024 envs. Each job gets its own compile caches, the CUDA driver's included (ISAACGYMENVS_MW_CACHE:
+# a cold start, as on a new node).
 #
 #   benchmarks/gpu_train_eval.sh OUT_DIR TRAIN_SECONDS "NAME GPU TASK SEED [train.py overrides...]" ...
 #
@@ -20,8 +21,8 @@ for spec in "$@"; do
   (
     export CUDA_VISIBLE_DEVICES=$gpu PYTHONUNBUFFERED=1
     if [ -z "${DRY_RUN_OVERRIDES:-}" ]; then  # a dry run keeps the machine's caches: it checks the round, not its speed
-      export WARP_CACHE_PATH=/tmp/cache/$name/warp TORCHINDUCTOR_CACHE_DIR=/tmp/cache/$name/inductor \
-             TRITON_CACHE_DIR=/tmp/cache/$name/triton
+      unset WARP_CACHE_PATH TORCHINDUCTOR_CACHE_DIR TRITON_CACHE_DIR CUDA_CACHE_PATH
+      export ISAACGYMENVS_MW_CACHE=/tmp/cache/$name
     fi
     runs=/tmp/runs/$name
     # shellcheck disable=SC2086  # the overrides are words
