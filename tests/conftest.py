@@ -6,6 +6,7 @@ costs a few seconds, later ones about 0.1 s, so tests build fresh tasks freely a
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -95,3 +96,28 @@ def train_one_iteration_then_test(task: str, runs_dir: Path, run_args: list[str]
     result = run(compose_config([f"task={task}", "num_envs=2", "test=True", f"checkpoint={checkpoint}", *overrides,
                                  *run_args]))
     assert result["episodes"] == 2
+
+
+def train_py_two_iterations_then_test(task: str, tmp_path: Path, num_envs: int, test_overrides: tuple[str, ...] = (),
+                                      timeout: int = 400) -> tuple[dict, dict]:
+    """``python train.py`` for 2 iterations of ``task`` on ``num_envs`` CPU worlds, then test mode from its last
+    checkpoint (``test_overrides`` added): the run's summary.json and the evaluation's eval.json."""
+    import json
+    import subprocess
+
+    runs = tmp_path / "runs"
+    base = [sys.executable, str(REPO_ROOT / "train.py"), f"task={task}", f"num_envs={num_envs}", *CPU_ARGS,
+            f"runs_dir={runs}"]
+    environ = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run([*base, "max_iterations=2"], cwd=tmp_path, capture_output=True, text=True, timeout=timeout,
+                          check=False, env=environ)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    (run_dir,) = [p for p in (runs / task).iterdir() if p.is_dir()]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    checkpoint = run_dir / "model_2.pt"
+    assert checkpoint.is_file()
+    proc = subprocess.run([*base, "test=True", f"checkpoint={checkpoint}", *test_overrides], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=timeout, check=False, env=environ)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    (evaluation,) = runs.rglob("eval.json")
+    return summary, json.loads(evaluation.read_text())

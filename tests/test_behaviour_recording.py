@@ -59,8 +59,9 @@ SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.
                   "BallBalance": ["task.env.episodeLength_s=0.4"]}  # 40 policy steps of 0.01 s
 
 
-# The recording's default that a later default replaced: FrankaCubeStack's reward became the staged one (issue 58).
-FORMER_DEFAULTS = {"FrankaCubeStack": ["task.env.reward.kind=isaacgymenvs"]}
+# The recording's defaults that later defaults replaced: FrankaCubeStack's reward became the staged one (issue 58), and
+# a share of its resets start with cube A in the hand (issue 68).
+FORMER_DEFAULTS = {"FrankaCubeStack": ["task.env.reward.kind=isaacgymenvs", "task.env.graspedResetFraction=0"]}
 # Where the recorded reward's factor moved from the task (env.rewardScale) to the learner recipe (issue 70): the
 # recording holds the reward the learner sees, the task's times the recipe's reward_scale.
 RECIPE_SCALED = ("Ant", "Humanoid", "FrankaCabinet", "AllegroHand")

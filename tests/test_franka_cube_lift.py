@@ -145,7 +145,7 @@ def test_a_scripted_grasp_and_lift_ends_the_episode_as_a_success():
     plan.append((around, 1.0, 50))  # down around the cube, open
     plan.append((around, -1.0, 20))  # close
     plan.append((np.stack([ik(m, site, c + [0, 0, 0.15], a) for c, a in zip(cube, around)]), -1.0, 60))  # up
-    step = env.arm_step
+    step = env.control.arm_step
     succeeded = torch.zeros(2, dtype=torch.bool)
     highest = np.zeros(2)
     for goal, grip, steps in plan:
@@ -154,7 +154,7 @@ def test_a_scripted_grasp_and_lift_ends_the_episode_as_a_success():
             arm = torch.clamp((goal - env.arm.targets[:, :7]) / step, -1.0, 1.0)
             action = torch.cat((arm, torch.full((2, 1), grip)), dim=1)
             rise = env.cube.root_pos[:, 2].numpy() - REST_Z
-            _, _, done, extras = env.step(action)
+            _, _, done, _extras = env.step(action)
             highest = np.maximum(highest, rise)
             new = env.metrics.recorded(OUTCOME)["success"].bool() if done.any() else torch.zeros(2, dtype=torch.bool)
             assert torch.equal(new, done.bool() & ~succeeded)  # the only episodes ending are successes

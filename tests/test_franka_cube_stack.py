@@ -1,7 +1,7 @@
-"""FrankaCubeStack (issue 32): IsaacGymEnvs' reward (``env.reward.kind: isaacgymenvs``) against a numpy transcription
-of its formula written here, its stack success on placed cubes (stacked and released, stacked but held, 3 cm off),
-resets (cubes on the table, far enough apart, within the noise), the two control types (targets and torques), the
-gripper, the observation against MuJoCo C, env.contact in the model, one-line errors, and one training iteration
+"""FrankaCubeStack (issue 32): IsaacGymEnvs' reward (task FrankaCubeStackIGE, ``env.reward.kind: isaacgymenvs``)
+against a numpy transcription of its formula written here, its stack success on placed cubes (stacked and released,
+stacked but held, 3 cm off), resets (cubes on the table, far enough apart, within the noise), the two control types
+(targets and torques), the gripper, the observation against MuJoCo C, env.contact in the model, one-line errors, and one training iteration
 plus test mode on the CPU. The staged reward, the default: tests/test_franka_cube_stack_staged.py."""
 
 from __future__ import annotations
@@ -16,11 +16,15 @@ import torch
 
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.learning.launch import run
+from isaacgymenvs_mw.tasks.arm_control import osc_torques
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME
 from isaacgymenvs_mw.tasks.build import build_task
-from isaacgymenvs_mw.tasks.arm_control import osc_torques
-from isaacgymenvs_mw.tasks.franka_cube_stack import cube_stack_terms, grasp_terms, sample_cubes
-from isaacgymenvs_mw.utils.config import compose_config
+from isaacgymenvs_mw.tasks.franka_cube_stack import (
+    cube_stack_terms,
+    grasp_terms,
+    sample_cubes,
+)
+from isaacgymenvs_mw.utils.config import compose_config, to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_matrix
 
@@ -81,8 +85,24 @@ def test_reward_terms_equal_the_reference_formula_on_constructed_states():
 @pytest.fixture(scope="module")
 def env():
     # IsaacGymEnvs' reward, whose success and 16 these tests check (the staged default: test_franka_cube_stack_staged)
-    return make("FrankaCubeStack", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True,
-                overrides=["task.env.reward.kind=isaacgymenvs"])
+    return make("FrankaCubeStackIGE", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True)
+
+
+def test_the_isaacgymenvs_reward_is_a_task_of_its_own_that_differs_only_in_it():
+    from isaacgymenvs_mw.tasks import get_task_class
+    from isaacgymenvs_mw.tasks.franka_cube_stack import FrankaCubeStack
+
+    assert get_task_class("FrankaCubeStackIGE") is FrankaCubeStack
+    ige = to_dict(compose_config(["task=FrankaCubeStackIGE"]).task)
+    stack = to_dict(compose_config(["task=FrankaCubeStack"]).task)
+    assert ige.pop("name") == "FrankaCubeStackIGE" and stack.pop("name") == "FrankaCubeStack"
+    assert ige["env"].pop("reward")["kind"] == "isaacgymenvs" and stack["env"].pop("reward")["kind"] == "staged"
+    assert ige["env"].pop("graspedResetFraction") == 0.0 and stack["env"].pop("graspedResetFraction") > 0.0
+    assert ige == stack
+    # the reward key still selects it in FrankaCubeStack
+    env = make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+               overrides=["task.env.reward.kind=isaacgymenvs"])
+    assert env.reward_kind == "isaacgymenvs" and set(env.rewards.names) >= set(SCALES)
 
 
 def place(env, a, b, q_arm=None):
@@ -132,7 +152,7 @@ def test_an_episode_ends_on_stacking_and_counts_as_a_success(env):
     b = np.array([0.45, 0.0, TABLE_TOP + 0.035])
     a = np.stack([b + [0, 0, 0.06], b + [0, 0.2, -0.01], b + [0, -0.2, -0.01]])  # env 0 stacked, 1-2 on the table
     place(env, a, np.tile(b, (3, 1)), np.tile(Q0, (3, 1)))
-    _, rew, done, extras = env.step(torch.tensor([[0.0] * 7 + [1.0]] * 3))  # hold still, gripper open
+    _, rew, done, _extras = env.step(torch.tensor([[0.0] * 7 + [1.0]] * 3))  # hold still, gripper open
     assert done.tolist() == [1, 0, 0]
     assert rew[0].item() == pytest.approx(16.0)
     assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0, 0.0, 0.0]
@@ -271,7 +291,7 @@ def test_training_one_iteration_then_test_mode_reports_a_success_rate(tmp_path, 
                           "train.runner.num_steps_per_env=8", *run_args])
     summary = run(cfg)
     assert summary["iterations"] == 1 and summary["success"] == 0.0  # 6-step episodes ended, none stacked
-    run_dir = [p for p in (tmp_path / "runs" / "FrankaCubeStack").iterdir() if p.is_dir()][0]
+    run_dir = next(p for p in (tmp_path / "runs" / "FrankaCubeStack").iterdir() if p.is_dir())
     eval_cfg = compose_config(["task=FrankaCubeStack", "num_envs=4", "test=True",
                                f"checkpoint={run_dir / 'model_1.pt'}", "task.env.episodeLength_s=0.1", *run_args])
     result = run(eval_cfg)

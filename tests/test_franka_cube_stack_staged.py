@@ -238,7 +238,7 @@ def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
     on by up to 7 mm in this script's fastest moves.)"""
     env = make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
                overrides=["task.env.controlType=osc", "task.env.frankaDofNoise=0.0",
-                          "task.env.startRotationNoise=0.0"])
+                          "task.env.startRotationNoise=0.0", "task.env.graspedResetFraction=0"])  # A on the table
     env.reset()
     a, b = env.cube_a.root_pos[0], env.cube_b.root_pos[0]  # live views of the simulator's state
     grasp = env.arm.grasp_pos()[0]

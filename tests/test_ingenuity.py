@@ -7,11 +7,7 @@ restated here, and the masses and the expected motions are computed from them in
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import mujoco
@@ -19,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from conftest import train_py_two_iterations_then_test
 
 from isaacgymenvs_mw import make
 from isaacgymenvs_mw.tasks.ingenuity import (
@@ -251,23 +248,8 @@ def test_spin_is_capped_at_iges_four_pi(env):
 
 
 def test_train_py_trains_two_iterations_and_test_mode_evaluates(tmp_path):
-    runs = tmp_path / "runs"
-    base = [sys.executable, str(REPO / "train.py"), "task=Ingenuity", "num_envs=8", "sim_device=cpu", "rl_device=cpu",
-            "headless=True", f"runs_dir={runs}"]
-    environ = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
-    proc = subprocess.run([*base, "max_iterations=2"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                          check=False, env=environ)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    (run_dir,) = [p for p in (runs / "Ingenuity").iterdir() if p.is_dir()]
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 16 * 8
-    checkpoint = run_dir / "model_2.pt"
-    assert checkpoint.is_file()
     # test mode, with 0.2 s episodes so that every env finishes one quickly
-    proc = subprocess.run([*base, "test=True", f"checkpoint={checkpoint}", "task.env.episodeLength_s=0.2"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False, env=environ)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    (evaluation,) = runs.rglob("eval.json")
-    result = json.loads(evaluation.read_text())
+    summary, result = train_py_two_iterations_then_test("Ingenuity", tmp_path, 8, ("task.env.episodeLength_s=0.2",))
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 16 * 8
     assert result["episodes"] == 8
     assert math.isfinite(result["target_distance"])

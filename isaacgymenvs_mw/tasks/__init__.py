@@ -12,25 +12,33 @@ plus ``cfg/task/MyTask.yaml`` and ``cfg/train/MyTaskPPO.yaml``.
 from __future__ import annotations
 
 from isaacgymenvs_mw.tasks.allegro_hand import AllegroHand
+from isaacgymenvs_mw.tasks.allegro_kuka import AllegroKuka
 from isaacgymenvs_mw.tasks.ant import Ant
-from isaacgymenvs_mw.tasks.ball_balance import BallBalance
 from isaacgymenvs_mw.tasks.anymal import Anymal
+from isaacgymenvs_mw.tasks.ball_balance import BallBalance
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.cartpole import Cartpole
 from isaacgymenvs_mw.tasks.cartpole_camera import CartpoleCamera
 from isaacgymenvs_mw.tasks.franka_cabinet import FrankaCabinet
-from isaacgymenvs_mw.tasks.franka_cube_lift import FrankaCubeLift, FrankaCubeLiftDepth, FrankaCubeLiftRGB
+from isaacgymenvs_mw.tasks.franka_cube_lift import (
+    FrankaCubeLift,
+    FrankaCubeLiftDepth,
+    FrankaCubeLiftRGB,
+)
 from isaacgymenvs_mw.tasks.franka_cube_stack import FrankaCubeStack
 from isaacgymenvs_mw.tasks.g1 import G1
 from isaacgymenvs_mw.tasks.go1 import Go1
 from isaacgymenvs_mw.tasks.humanoid import Humanoid
+from isaacgymenvs_mw.tasks.humanoid_amp import HumanoidAMP
 from isaacgymenvs_mw.tasks.ingenuity import Ingenuity
 from isaacgymenvs_mw.tasks.quadcopter import Quadcopter
 from isaacgymenvs_mw.tasks.shadow_hand import ShadowHand
+from isaacgymenvs_mw.tasks.trifinger import Trifinger
 from isaacgymenvs_mw.utils.errors import UnknownNameError
 
 isaacgym_task_map: dict[str, type[VecTask]] = {
     "AllegroHand": AllegroHand,
+    "AllegroKuka": AllegroKuka,
     "Ant": Ant,
     "Anymal": Anymal,
     "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain
@@ -43,15 +51,18 @@ isaacgym_task_map: dict[str, type[VecTask]] = {
     "FrankaCubeLiftDepth": FrankaCubeLiftDepth,
     "FrankaCubeLiftRGB": FrankaCubeLiftRGB,
     "FrankaCubeStack": FrankaCubeStack,
+    "FrankaCubeStackIGE": FrankaCubeStack,  # same class; cfg/task/FrankaCubeStackIGE.yaml: IsaacGymEnvs' reward
     "G1": G1,
     "G1Terrain": G1,  # same class; cfg/task/G1Terrain.yaml adds env.terrain
     "Go1": Go1,
     "Go1Terrain": Go1,
     "Humanoid": Humanoid,
+    "HumanoidAMP": HumanoidAMP,
     "Ingenuity": Ingenuity,
     "Quadcopter": Quadcopter,
     "ShadowHand": ShadowHand,
     "ShadowHandOpenAI_FF": ShadowHand,  # same class; cfg/task/ShadowHandOpenAI_FF.yaml: OpenAI's setting
+    "Trifinger": Trifinger,
 }
 
 
@@ -74,4 +85,4 @@ def get_task_class(name: str) -> type[VecTask]:
     return isaacgym_task_map[name]
 
 
-__all__ = ["VecTask", "isaacgym_task_map", "register_task", "get_task_class"]
+__all__ = ["VecTask", "get_task_class", "isaacgym_task_map", "register_task"]

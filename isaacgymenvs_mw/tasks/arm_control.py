@@ -1,15 +1,18 @@
-"""How a Franka task's actions drive the arm (``env.controlType``): one class per kind, with the same methods, so the
-task never asks which one it has (tasks/franka_cube_stack.py).
+"""The arm controller of the Franka tasks (FrankaCabinet, FrankaCubeLift, FrankaCubeStack): how actions drive the
+arm (``env.controlType``). One class per kind, with the same methods (action size, observation, apply, reset), so a
+task never asks which one it has; a task names the kinds it supports (``arm_control``).
 
   * ``joint_pos`` (``JointPositionControl``, default): the 7 arm servo targets move by ``actionScale x control dt x a``
-    per step, clamped to the joint ranges (as FrankaCabinet);
+    per step, clamped to the joint ranges. The gripper action opens (>= 0) or closes (< 0) the fingers, as IGE's cube
+    tasks; or, with a ``gripper_speed`` (FrankaCabinet's ``fingerSpeedScale``), it moves the gripper target like a
+    joint's at that fraction of the arm's speed, as IGE's FrankaCabinet;
   * ``joint_tor`` (``JointTorqueControl``): the arm joints' torques are ``a x`` their limits (87 / 12 N m),
     IsaacGymEnvs' joint_tor, by rewriting the MJCF's arm servos as motors (``env.control.driveMode``);
   * ``osc`` (``OperationalSpaceControl``): IsaacGymEnvs' operational-space control. The first 6 actions x
     ``oscCommandLimit`` are a pose error of the grasp frame (m, rad; world axes), turned into arm torques through the
     task-space inertia from the mass matrix and the grasp site's Jacobian (``sim.dynamics.SiteDynamics``), plus a
     null-space pull toward ``startDofPos``; gains ``oscKp`` and ``oscKpNull``, critically damped, as IGE.
-The last action is the gripper in every mode: >= 0 opens the fingers, < 0 closes them.
+The last action is the gripper in every mode; the torque modes open or close it.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import math
 import torch
 
 from isaacgymenvs_mw.sim.dynamics import SiteDynamics
+from isaacgymenvs_mw.tasks.base.contract import check_actuator_count
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.franka import gripper_command, joint_pos_targets_delta
 from isaacgymenvs_mw.utils.config import one_of
@@ -29,7 +33,17 @@ CONTROL_TYPES = ("joint_pos", "joint_tor", "osc")
 
 
 class JointPositionControl:
-    """Actions move the arm's servo targets; 8 actions (7 joints and the gripper); observes all 9 joint positions."""
+    """Actions move the arm's servo targets; 8 actions (7 joints and the gripper); observes all 9 joint positions.
+
+    Args:
+        gripper_speed: None: the gripper action opens or closes the fingers; a number: it moves the gripper's target
+            by this fraction of ``actionScale x control dt`` per step at action 1 (m).
+    """
+
+    kind = "joint_pos"
+
+    def __init__(self, gripper_speed: float | None = None) -> None:
+        self.gripper_speed = gripper_speed
 
     def prepare(self, env: dict) -> None:
         """Change the task YAML before the model is built (the torque modes make the servos motors)."""
@@ -39,17 +53,40 @@ class JointPositionControl:
         self.task, self.sim, self.arm = task, task.sim, task.arm
         self.torque_limit = torch.tensor(task.sim.mj_model.actuator_forcerange[:7, 1], dtype=torch.float32,
                                          device=task.device)
-        self.arm_step = task.env_numbers["actionScale"] * task.control_dt  # rad per step at action 1
+        scale = task.env_numbers["actionScale"]
+        self.arm_step = scale * task.control_dt  # rad per step at action 1
+        self.target_step = None
+        if self.gripper_speed is not None:
+            # every target's step per unit action (rad for the arm, m for the gripper), IGE's FrankaCabinet
+            speed = torch.ones(self.arm.num_targets, device=task.device)
+            speed[-1] = self.gripper_speed
+            self.target_step = speed * scale * task.control_dt
 
     def action_count(self) -> int | None:
         """The actions this control takes, when they are not the model's actuators (None: one per actuator)."""
         return None
 
-    def apply(self, actions: torch.Tensor) -> None:
-        self.arm.move_targets(joint_pos_targets_delta(actions, self.arm, self.arm_step))
+    def check_action_size(self, task) -> None:
+        """``env.numActions`` fits this control (VecTask.check_action_size, at construction, before ``bind``)."""
+        wanted = self.action_count()
+        if wanted is None:
+            check_actuator_count(type(task).__name__, task.num_actions, task.sim)
+        elif task.num_actions != wanted:
+            raise ConfigError(f"{type(task).__name__}: task.env.numActions={task.num_actions} is invalid with "
+                              f"controlType={self.kind}: give {wanted} (6 pose-error components and the gripper, "
+                              "IGE's)")
 
-    def observation_terms(self) -> list[ObsTerm]:
-        # all 9 joint positions (rad; fingers m), IsaacGymEnvs' joint_tor observation
+    def apply(self, actions: torch.Tensor) -> None:
+        if self.target_step is None:
+            self.arm.move_targets(joint_pos_targets_delta(actions, self.arm, self.arm_step))
+        else:
+            self.arm.move_targets(actions * self.target_step)
+
+    def observation_terms(self, scaled: bool = False) -> list[ObsTerm]:
+        """The arm's joints (IsaacGymEnvs' joint_tor observation): all 9 positions (rad; fingers m), or with
+        ``scaled`` each mapped from its range to [-1, 1] (IGE's FrankaCabinet)."""
+        if scaled:
+            return [ObsTerm("dof_pos", 9, compute=self.arm.scaled_dof_pos)]
         return [ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos)]
 
     def on_reset(self, mask: torch.Tensor) -> None:
@@ -58,6 +95,8 @@ class JointPositionControl:
 
 class JointTorqueControl(JointPositionControl):
     """Actions are arm torques as fractions of the joints' limits, and the gripper."""
+
+    kind = "joint_tor"
 
     def prepare(self, env: dict) -> None:
         # The MJCF's arm servos become torque motors (same names and ctrl columns, force capped at 87 / 12 N m).
@@ -76,6 +115,8 @@ class JointTorqueControl(JointPositionControl):
 class OperationalSpaceControl(JointTorqueControl):
     """IsaacGymEnvs' 7 actions (a pose error of the grasp frame and the gripper) through its OSC law; observes the
     fingers only."""
+
+    kind = "osc"
 
     def bind(self, task) -> None:
         super().bind(task)
@@ -102,19 +143,26 @@ class OperationalSpaceControl(JointTorqueControl):
         self.sim.ctrl[:, :7] = torch.clamp(torques, -self.torque_limit, self.torque_limit)
         self.sim.ctrl[:, 7] = gripper_command(actions[:, -1])
 
-    def observation_terms(self) -> list[ObsTerm]:
+    def observation_terms(self, scaled: bool = False) -> list[ObsTerm]:
         # IGE's osc observation: the fingers only (m)
         return [ObsTerm("finger_pos", 2, compute=lambda: self.sim.dof_pos[:, 7:9])]
 
 
-CONTROLS = {"joint_pos": JointPositionControl, "joint_tor": JointTorqueControl, "osc": OperationalSpaceControl}
+CONTROLS = {c.kind: c for c in (JointPositionControl, JointTorqueControl, OperationalSpaceControl)}
 
 
-def arm_control(env: dict) -> JointPositionControl:
-    """The control ``env.controlType`` names (default joint_pos), prepared on the task YAML."""
-    kind = one_of(env.get("controlType", "joint_pos"), "env.controlType", CONTROL_TYPES)
-    control = CONTROLS[kind]()
-    control.kind = kind
+def arm_control(env: dict, task: str, kinds: tuple[str, ...] = CONTROL_TYPES,
+                gripper_speed: float | None = None) -> JointPositionControl:
+    """The control ``env.controlType`` names (default joint_pos), one of the ``kinds`` that ``task`` supports,
+    prepared on the task YAML; ``gripper_speed`` configures joint_pos's gripper (JointPositionControl)."""
+    value = env.get("controlType", "joint_pos")
+    if len(kinds) == 1 and value != kinds[0]:
+        raise ConfigError(f"env.controlType={value!r} is invalid: {task} supports only {kinds[0]!r}")
+    kind = one_of(value, "env.controlType", kinds)
+    if gripper_speed is not None and kind != "joint_pos":
+        raise ConfigError(f"env.controlType={kind!r} is invalid: {task} moves its gripper target as a joint, "
+                          "which only 'joint_pos' does")
+    control = CONTROLS[kind](gripper_speed)
     control.prepare(env)
     return control
 

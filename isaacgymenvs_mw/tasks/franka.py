@@ -7,6 +7,7 @@ gripper, whose command is each finger's opening in metres, 0 ... 0.04), and the 
 fingertip pads. IsaacGymEnvs' Franka tasks have 9 DOFs and 9 actions, one per finger; here the fingers are coupled
 by the model, so the gripper is one action and both finger positions stay in the observation.
 
+``ArmKinematics`` is the hand's kinematics in torch, which poses the arm for starts with a cube in the hand.
 The cube tasks share the scene's dimensions, the gripper command, the arm's start-pose draw, and the reward
 quantities of the approach (IsaacGymEnvs' ``dist``) and of holding and raising cube A (this project's ``grasp`` /
 ``lift_height`` shaping). All positions are in the robot's base frame, the world frame of these scenes
@@ -87,6 +88,11 @@ class FrankaArm:
         rows = mask.unsqueeze(1)
         self.targets.copy_(torch.where(rows, dof_pos[:, :8], self.targets))
         self.ctrl.copy_(torch.where(rows, self.targets, self.ctrl))  # the running worlds keep their commands
+
+    def close_gripper(self, mask: torch.Tensor) -> None:
+        """Command the masked worlds' gripper closed (after ``reset``: a start with a cube in the hand)."""
+        self.targets[:, 7].masked_fill_(mask, CLOSED)
+        self.ctrl[:, 7].masked_fill_(mask, CLOSED)
 
     # ------------------------------------------------------------------ state
     def scaled_dof_pos(self) -> torch.Tensor:
@@ -187,3 +193,97 @@ def privileged_terms(arm: FrankaArm, cubes: dict, observed: list[ObsTerm] = ()) 
     seen = {term.name for term in observed}
     return [term for term in terms if term.name not in seen]
 
+
+
+# ---------------------------------------------------------------- kinematics of the hand, for starts with a cube held
+class ArmKinematics:
+    """The pose and Jacobian of a site on the arm as functions of the 7 arm joints, batched in torch, from the
+    model's body tree: MuJoCo's forward kinematics for hinge joints (a body's frame is its parent's moved by
+    ``body_pos`` / ``body_quat``, then turned about each joint's axis through its anchor by qpos - qpos0).
+
+    Args:
+        sim: the built Simulator, the Panda its main asset.
+        site: the site's model index (``sim.site_id``).
+    """
+
+    def __init__(self, sim: Simulator, site: int) -> None:
+        m = sim.mj_model
+        f64 = {"dtype": torch.float64, "device": sim.device}
+        chain, b = [], int(m.site_bodyid[site])
+        while b > 0:
+            chain.append(b)
+            b = int(m.body_parentid[b])
+        self.bodies = []  # per body of the chain, root first: position, rotation, [(column of q, anchor, axis, ref)]
+        arm_qpos = [int(m.jnt_qposadr[m.joint(name).id]) for name in ARM_JOINTS]
+        for body in reversed(chain):
+            joints = []
+            for j in np.flatnonzero(m.jnt_bodyid == body):
+                if m.jnt_type[j] != 3 or int(m.jnt_qposadr[j]) not in arm_qpos:  # 3: mjJNT_HINGE
+                    raise ConfigError(f"ArmKinematics: joint {m.joint(j).name!r} on the way to the site is not an "
+                                      f"arm joint {list(ARM_JOINTS)}")
+                adr = int(m.jnt_qposadr[j])
+                joints.append((arm_qpos.index(adr), torch.tensor(m.jnt_pos[j], **f64),
+                               torch.tensor(m.jnt_axis[j], **f64), float(m.qpos0[adr])))
+            self.bodies.append((torch.tensor(m.body_pos[body], **f64), _quat_matrix(m.body_quat[body], f64), joints))
+        self.site_pos, self.site_rot = torch.tensor(m.site_pos[site], **f64), _quat_matrix(m.site_quat[site], f64)
+
+    def forward(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """For arm joints ``q`` (K, 7): the site's world position (K, 3), rotation (K, 3, 3; axes as columns) and
+        Jacobian (K, 6, 7; rows 0-2 linear, 3-5 angular velocity per joint velocity), float64."""
+        q = q.double()
+        k = q.shape[0]
+        pos = torch.zeros((k, 3), dtype=q.dtype, device=q.device)
+        rot = torch.eye(3, dtype=q.dtype, device=q.device).expand(k, 3, 3)
+        anchors, axes = [None] * 7, [None] * 7
+        for body_pos, body_rot, joints in self.bodies:
+            pos = pos + rot @ body_pos
+            rot = rot @ body_rot
+            for column, joint_pos, axis, ref in joints:
+                anchors[column] = pos + rot @ joint_pos
+                axes[column] = rot @ axis
+                rot = rot @ _axis_angle_matrix(axis, q[:, column] - ref)
+                pos = anchors[column] - rot @ joint_pos
+        site = pos + rot @ self.site_pos
+        anchor, axis = torch.stack(anchors, dim=2), torch.stack(axes, dim=2)  # (K, 3, 7)
+        linear = torch.linalg.cross(axis, site.unsqueeze(2) - anchor, dim=1)
+        return site, rot @ self.site_rot, torch.cat((linear, axis), dim=1)
+
+    def solve(self, target_pos: torch.Tensor, target_rot: torch.Tensor, q_start: torch.Tensor, lower: torch.Tensor,
+              upper: torch.Tensor, iterations: int = 200, damping: float = 1e-4) -> tuple[torch.Tensor, torch.Tensor]:
+        """Damped least squares: arm joints (K, 7) within [``lower``, ``upper``] that put the site at ``target_pos``
+        (K, 3) with rotation ``target_rot`` (K, 3, 3), starting from ``q_start`` (7,); and the remaining pose error
+        (K,; m and rad together)."""
+        q = q_start.double().expand(target_pos.shape[0], 7).clone()
+        target_pos, target_rot = target_pos.double(), target_rot.double()
+        eye = damping * torch.eye(6, dtype=q.dtype, device=q.device)
+        for _ in range(iterations):
+            error, jac = self._pose_error(q, target_pos, target_rot)
+            step = jac.transpose(1, 2) @ torch.linalg.solve(jac @ jac.transpose(1, 2) + eye, error.unsqueeze(2))
+            q = torch.clamp(q + step.squeeze(2), lower.double(), upper.double())
+        return q, torch.linalg.norm(self._pose_error(q, target_pos, target_rot)[0], dim=1)
+
+    def _pose_error(self, q: torch.Tensor, target_pos: torch.Tensor,
+                    target_rot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(K, 6) the position still to go and the rotation still to go (half the skew part of R_target R^T), and
+        the Jacobian (K, 6, 7) at ``q``."""
+        pos, rot, jac = self.forward(q)
+        r = target_rot @ rot.transpose(1, 2)
+        turn = 0.5 * torch.stack((r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]), dim=1)
+        return torch.cat((target_pos - pos, turn), dim=1), jac
+
+
+def _quat_matrix(quat: np.ndarray, f64: dict) -> torch.Tensor:
+    """The rotation matrix of a (w, x, y, z) unit quaternion."""
+    w, x, y, z = (float(v) for v in quat / np.linalg.norm(quat))
+    return torch.tensor([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]], **f64)
+
+
+def _axis_angle_matrix(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """(K, 3, 3) rotations by ``angle`` (K,) about the unit ``axis`` (3,) (Rodrigues)."""
+    x, y, z = axis / torch.linalg.norm(axis)
+    zero = torch.zeros((), dtype=axis.dtype, device=axis.device)
+    skew = torch.stack((torch.stack((zero, -z, y)), torch.stack((z, zero, -x)), torch.stack((-y, x, zero))))
+    s, c = torch.sin(angle).view(-1, 1, 1), torch.cos(angle).view(-1, 1, 1)
+    return torch.eye(3, dtype=axis.dtype, device=axis.device) + s * skew + (1.0 - c) * (skew @ skew)

@@ -2,7 +2,8 @@
 
 The scene: the Panda (``env.asset``, at the world origin) faces the cabinet (``env.assets.cabinet``), whose top
 drawer slides out toward the robot. Actions move the 7 joint targets and the gripper target by
-``actionScale x control dt x a`` per step (the gripper 10 times slower), as IsaacGymEnvs; the episode ends when the
+``actionScale x control dt x a`` per step (the gripper 10 times slower), as IsaacGymEnvs (``env.controlType``
+joint_pos, the arm controller of tasks/arm_control.py); the episode ends when the
 drawer is open past ``openDistance`` (a success) or at the time limit.
 
 Differences from IsaacGymEnvs, on purpose: the fingers are coupled (8 actions, not 9; the observation keeps both
@@ -17,9 +18,10 @@ from __future__ import annotations
 
 import torch
 
+from isaacgymenvs_mw.tasks.arm_control import arm_control
+from isaacgymenvs_mw.tasks.base.env_keys import refuse_reward_scale
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
-from isaacgymenvs_mw.tasks.base.env_keys import refuse_reward_scale
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import FrankaArm
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -49,15 +51,17 @@ class FrankaCabinet(VecTask):
             raise ConfigError(f"FrankaCabinet: the task YAML's env section lacks {missing}")
         refuse_reward_scale(type(self).__name__, env)
         self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
+        # joint_pos only, the gripper target moved like a joint's (IGE's); before the model is built
+        self.control = arm_control(env, "FrankaCabinet", ("joint_pos",),
+                                   gripper_speed=self.env_numbers["fingerSpeedScale"])
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
                          virtual_screen_capture, force_render)
         self.arm = FrankaArm(self.sim, "FrankaCabinet")
         self._init_drawer(env["drawer"])
         self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
-        # Per step, a target moves by at most actionScale x control dt (rad for the arm, m for the gripper).
-        speed = torch.ones(self.arm.num_targets, device=self.device)
-        speed[-1] = self.env_numbers["fingerSpeedScale"]
-        self.target_step = speed * self.env_numbers["actionScale"] * self.control_dt
+        # Per step, a target moves by at most actionScale x control dt (rad for the arm; the gripper
+        # fingerSpeedScale times that, m): tasks/arm_control.py
+        self.control.bind(self)
         self.actions = torch.zeros((self.num_envs, self.num_actions), device=self.device)
         self.rewards = RewardTerms.from_env(self, env, self.num_envs, self.device, ige_keys=REWARD_SCALE_KEYS)
         self.build_observation_layouts()
@@ -87,9 +91,12 @@ class FrankaCabinet(VecTask):
         self.opening_axis = self.sim.xmat[0, self.drawer_body] @ axis
 
     # ------------------------------------------------------------------ pre-physics
+    def check_action_size(self) -> None:
+        self.control.check_action_size(self)
+
     def pre_physics_step(self, actions: torch.Tensor) -> None:
         self.actions.copy_(actions)
-        self.arm.move_targets(actions * self.target_step)
+        self.control.apply(actions)
 
     # ------------------------------------------------------------------ post-physics
     def drawer_pos(self) -> torch.Tensor:
@@ -150,7 +157,7 @@ class FrankaCabinet(VecTask):
             return self.sim.site_xpos[:, self.handle_site] - self.arm.grasp_pos()
 
         d = self.drawer_dof
-        return [ObsTerm("dof_pos", 9, compute=self.arm.scaled_dof_pos),                # 7 arm + 2 fingers, [-1, 1]
+        return [*self.control.observation_terms(scaled=True),                         # 7 arm + 2 fingers, [-1, 1]
                 ObsTerm("dof_vel", 9, scale=self.env_numbers["dofVelocityScale"],
                         compute=lambda: self.sim.dof_vel),                              # rad/s, m/s
                 ObsTerm("to_handle", 3, compute=to_handle),                             # m, world frame
@@ -162,6 +169,7 @@ class FrankaCabinet(VecTask):
         noise = self.env_numbers["startDofNoise"] * (torch.rand((self.num_envs, 9), device=self.device) - 0.5)
         dof_pos = torch.clamp(self.start_dof_pos + noise, self.arm.dof_lower, self.arm.dof_upper)
         self.arm.reset(mask, dof_pos)
+        self.control.on_reset(mask)
         closed = torch.zeros_like(self.cabinet.dof_pos)
         # No pose refresh: it would run the kinematics of every world at every step (reset_idx runs each step,
         # with an empty mask mostly), 13 % of VecTask.step on a GPU. A new episode's first observation then

@@ -7,8 +7,9 @@ resting on the table. The cube counts as lifted when its centre is ``liftHeight`
 (between the closed finger pads) is a success: the episode ends and the learner bootstraps it like a time-out
 (VecTask.check_success).
 
-Control: ``joint_pos`` only (``env.controlType``): each step the 7 arm servo targets move by ``actionScale`` x control
-dt x a, clamped to the joint ranges; the last action opens (>= 0) or closes (< 0) the gripper, as FrankaCubeStack.
+Control: ``joint_pos`` only (``env.controlType``, the arm controller of tasks/arm_control.py): each step the 7 arm
+servo targets move by ``actionScale`` x control dt x a, clamped to the joint ranges; the last action opens (>= 0) or
+closes (< 0) the gripper, as FrankaCubeStack.
 
 FrankaCubeLift observes the cube's pose. FrankaCubeLiftDepth is the same problem, but its policy does not observe
 the cube: it sees a depth image of the table from a fixed camera (``env.cameras.overhead``) and its own arm; the
@@ -21,7 +22,12 @@ from __future__ import annotations
 import torch
 
 from isaacgymenvs_mw.tasks import franka
-from isaacgymenvs_mw.tasks.base.observation_terms import ImageTerm, ObsTerm, camera_terms
+from isaacgymenvs_mw.tasks.arm_control import arm_control
+from isaacgymenvs_mw.tasks.base.observation_terms import (
+    ImageTerm,
+    ObsTerm,
+    camera_terms,
+)
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import FrankaArm
@@ -52,9 +58,7 @@ class FrankaCubeLift(VecTask):
         missing = [k for k in (*_NUMBER_KEYS, *REWARD_SCALE_KEYS.values(), "startDofPos") if k not in env]
         if missing:
             raise ConfigError(f"{name}: the task YAML's env section lacks {missing}")
-        if env.get("controlType", "joint_pos") != "joint_pos":
-            raise ConfigError(f"env.controlType={env.get('controlType')!r} is invalid: {name} supports only "
-                              "'joint_pos'")
+        self.control = arm_control(env, name, ("joint_pos",))  # tasks/arm_control.py, before the model is built
         self.env_numbers = {key: real_number(env[key], f"env.{key}", 0.0, low_open=must_be_positive)
                             for key, must_be_positive in _NUMBER_KEYS.items()}
         # True: the critic also reads what the simulator knows (franka.privileged_terms)
@@ -64,15 +68,18 @@ class FrankaCubeLift(VecTask):
         self.arm = FrankaArm(self.sim, name)
         self.start_dof_pos = self.arm.start_pose(env["startDofPos"], "env.startDofPos")
         self.cube = self.sim.asset("cubeA")
-        self.arm_step = self.env_numbers["actionScale"] * self.control_dt  # rad per step at action 1
+        self.control.bind(self)
         self.table_centre = torch.tensor([*franka.TABLE_CENTRE_XY], device=self.device)
         self.rewards = RewardTerms.from_env(self, env, self.num_envs, self.device, ige_keys=REWARD_SCALE_KEYS)
         self.terms: dict[str, torch.Tensor] = {}
         self.build_observation_layouts()
 
     # ------------------------------------------------------------------ pre-physics
+    def check_action_size(self) -> None:
+        self.control.check_action_size(self)
+
     def pre_physics_step(self, actions: torch.Tensor) -> None:
-        self.arm.move_targets(franka.joint_pos_targets_delta(actions, self.arm, self.arm_step))
+        self.control.apply(actions)
 
     # ------------------------------------------------------------------ post-physics
     def refresh_state(self) -> None:
@@ -107,7 +114,7 @@ class FrankaCubeLift(VecTask):
     # ------------------------------------------------------------------ observations
     def proprioception_terms(self) -> list[ObsTerm]:
         """What the arm knows of itself (29 values)."""
-        return [ObsTerm("dof_pos", 9, compute=lambda: self.sim.dof_pos),                # rad; fingers m
+        return [*self.control.observation_terms(),                                      # rad; fingers m
                 ObsTerm("dof_vel", 9, scale=DOF_VEL_SCALE, compute=lambda: self.sim.dof_vel),  # rad/s; m/s
                 # the servo targets the actions move (rad; gripper m): state the next step's motion depends on
                 ObsTerm("dof_targets", 8, compute=lambda: self.arm.targets),
@@ -138,6 +145,7 @@ class FrankaCubeLift(VecTask):
         self.sim.reset_worlds(mask)
         numbers = self.env_numbers
         self.arm.reset(mask, franka.noisy_start_pose(self.start_dof_pos, numbers["frankaDofNoise"], self.arm, n))
+        self.control.on_reset(mask)
         pos, quat = sample_cube(n, self.table_centre, numbers["startPositionNoise"], numbers["startRotationNoise"])
         zero = torch.zeros_like(pos)
         # The observation reads the grasp site and the cube: poses recomputed once, after both writes.

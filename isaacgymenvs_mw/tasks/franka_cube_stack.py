@@ -11,9 +11,13 @@ Reward (``env.reward.kind``):
     carry it over B, place it on B, release it (``staged_stack_reward``). Each stage pays within its own band, above
     every earlier one (``env.reward.stageLevels``); the most, once A is stacked: on B, the gripper open, A at rest.
     That ends the episode, and the learner's bootstrap values it as that reward paid on every later step.
-  * ``isaacgymenvs``: IsaacGymEnvs' reward (``cube_stack_terms``: approach, lifted, aligned, and 16 on the step A
-    is on B with the grasp point 4 cm away from it, which ends the episode), plus this project's grasp shaping
-    (``graspRewardScale``, ``liftHeightRewardScale``; 0 gives IGE's reward exactly).
+  * ``isaacgymenvs`` (the task FrankaCubeStackIGE, cfg/task/FrankaCubeStackIGE.yaml): IsaacGymEnvs' reward
+    (``cube_stack_terms``: approach, lifted, aligned, and 16 on the step A is on B with the grasp point 4 cm away from
+    it, which ends the episode), plus this project's grasp shaping (``graspRewardScale``, ``liftHeightRewardScale``; 0
+    gives IGE's reward exactly).
+
+Resets: IGE's (the arm at ``startDofPos`` with noise, both cubes on the table), except ``env.graspedResetFraction`` of
+them, which start with A already in the closed hand (``GraspedStarts``).
 
 Control (``env.controlType``: ``joint_pos``, the default, ``joint_tor`` or IsaacGymEnvs' ``osc``) is a component,
 tasks/arm_control.py; the last action is the gripper in every mode (8 actions in the joint modes, IGE's 7 in osc).
@@ -32,16 +36,17 @@ import math
 
 import torch
 
+from isaacgymenvs_mw.tasks.arm_control import arm_control
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, Metric
 from isaacgymenvs_mw.tasks.base.observation_terms import ObsTerm
 from isaacgymenvs_mw.tasks.base.rewards import RewardTerms
-from isaacgymenvs_mw.tasks.arm_control import arm_control
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.tasks.franka import (
     CUBE_A_SIZE,
     OPEN,
     TABLE_CENTRE_XY,
     TABLE_TOP,
+    ArmKinematics,
     FrankaArm,
     approach_term,
     fingertips,
@@ -49,7 +54,7 @@ from isaacgymenvs_mw.tasks.franka import (
     noisy_start_pose,
     privileged_terms,
 )
-from isaacgymenvs_mw.utils.config import boolean, one_of
+from isaacgymenvs_mw.utils.config import boolean, one_of, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_from_matrix, quat_from_yaw
 
@@ -67,6 +72,8 @@ CUBE_B_SIZE = 0.07  # edge length (m), assets/mjcf/cube_7cm.xml (A's, CUBE_A_SIZ
 # cubes' half-diagonals), so that the cubes never overlap, whatever their yaws.
 MIN_CUBE_DISTANCE = 2.0 * (CUBE_A_SIZE + CUBE_B_SIZE) * math.sqrt(2.0) / 2.0
 CANDIDATES = 32  # draws for A per reset; the first far enough from B is taken (all 32 too close: p < 1e-13)
+GRASPED_LIFT = 0.01  # a grasped start holds A's bottom this far above the table (m): off it, not yet lifted
+GRASP_POSES = 256    # grasped-start arm poses solved at construction (A's start places and yaws)
 
 # The staged reward's stages, in order. Each pays its level (env.reward.stageLevels, the YAML's) plus its progress,
 # 0 ... 1 ("stacked" its level alone), all divided by stacked's level: the reward per step is 0 ... 1.
@@ -100,8 +107,11 @@ class FrankaCubeStack(VecTask):
             raise ConfigError(f"FrankaCubeStack: the task YAML's env section lacks {missing}")
         if self.reward_kind == "staged":
             self.stage_levels = stage_levels(env["reward"]["stageLevels"], "env.reward.stageLevels")
-        self.control = arm_control(env)  # env.controlType (tasks/arm_control.py), before the model is built
+        self.control = arm_control(env, "FrankaCubeStack")  # env.controlType, before the model is built
         self.env_numbers = {key: float(env[key]) for key in _NUMBER_KEYS}
+        # the share of resets that start with A in the closed hand (GraspedStarts); absent: none, as IGE
+        self.grasped_fraction = real_number(env.get("graspedResetFraction", 0.0), "env.graspedResetFraction",
+                                            0.0, 1.0)
         # True: the critic also reads what the simulator knows (franka.privileged_terms)
         self.asymmetric = boolean(env.get("asymmetric_observations", False), "env.asymmetric_observations")
         super().__init__(cfg, rl_device, sim_device, graphics_device_id, headless,
@@ -120,18 +130,15 @@ class FrankaCubeStack(VecTask):
         self.terms: dict[str, torch.Tensor] = {}
         self.furthest_stage = torch.zeros(self.num_envs, device=self.device)  # this episode's, staged reward
         self.control.bind(self)
+        # whether each env's episode started with A in the hand
+        self.grasped_start = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        self.grasped_starts = GraspedStarts(self) if self.grasped_fraction > 0.0 else None
         self.build_observation_layouts()
 
     # ------------------------------------------------------------------ pre-physics
     def check_action_size(self) -> None:
         # osc: IGE's 7 actions (a 6-component pose error and the gripper) drive the 8 actuators through the law
-        wanted = self.control.action_count()
-        if wanted is None:
-            return super().check_action_size()
-        if self.num_actions != wanted:
-            raise ConfigError(f"FrankaCubeStack: task.env.numActions={self.num_actions} is invalid with "
-                              f"controlType={self.control.kind}: give {wanted} (6 pose-error components and the "
-                              "gripper, IGE's)")
+        self.control.check_action_size(self)
 
     def pre_physics_step(self, actions: torch.Tensor) -> None:
         self.control.apply(actions)
@@ -216,11 +223,16 @@ class FrankaCubeStack(VecTask):
             self.metrics.record(FURTHEST_STAGE, torch.where(mask, self.furthest_stage, 0.0).sum())
             self.furthest_stage.masked_fill_(mask, 0.0)
         dof_pos = noisy_start_pose(self.start_dof_pos, self.env_numbers["frankaDofNoise"], self.arm, n)
-        self.sim.reset_worlds(mask)
-        self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
-        self.control.on_reset(mask)
         pos_a, pos_b, quat_a, quat_b = sample_cubes(n, self.table_centre, self.env_numbers["startPositionNoise"],
                                                     self.env_numbers["startRotationNoise"], dev)
+        if self.grasped_starts is not None:  # a share of the resets hold A (env.graspedResetFraction)
+            grasped, dof_pos, pos_a, quat_a, pos_b = self.grasped_starts.draw(dof_pos, pos_a, quat_a, pos_b)
+            self.grasped_start.copy_(torch.where(mask, grasped, self.grasped_start))
+        self.sim.reset_worlds(mask)
+        self.arm.reset(mask, dof_pos)  # servo targets at the new joint positions, in the reset worlds' ctrl
+        if self.grasped_starts is not None:
+            self.arm.close_gripper(mask & self.grasped_start)
+        self.control.on_reset(mask)
         zero = torch.zeros_like(pos_a)
         self.sim.write_state(mask, root_pos=pos_a, root_quat=quat_a, root_lin_vel=zero, root_ang_vel=zero,
                              asset="cubeA", refresh=False)
@@ -253,13 +265,67 @@ def sample_cubes(n: int, centre: torch.Tensor, xy_noise: float, yaw_noise: float
         return 2.0 * torch.rand(shape, device=device) - 1.0
 
     xy_b = centre + xy_noise * uniform(n, 2)
-    xy_a = centre + xy_noise * uniform(n, CANDIDATES, 2)
-    far = torch.linalg.norm(xy_a - xy_b.unsqueeze(1), dim=-1) >= MIN_CUBE_DISTANCE
-    first = torch.argmax(far.to(torch.uint8), dim=1)  # the first far-enough draw (0 if none is)
-    xy_a = xy_a[torch.arange(n, device=device), first]
+    xy_a = first_far(centre + xy_noise * uniform(n, CANDIDATES, 2), xy_b)
     pos_a = torch.cat((xy_a, torch.full((n, 1), TABLE_TOP + CUBE_A_SIZE / 2, device=device)), dim=1)
     pos_b = torch.cat((xy_b, torch.full((n, 1), TABLE_TOP + CUBE_B_SIZE / 2, device=device)), dim=1)
     return pos_a, pos_b, quat_from_yaw(yaw_noise * uniform(n)), quat_from_yaw(yaw_noise * uniform(n))
+
+
+def first_far(candidates: torch.Tensor, other: torch.Tensor) -> torch.Tensor:
+    """(n, 2) the first of the ``candidates`` (n, CANDIDATES, 2) at least MIN_CUBE_DISTANCE from ``other`` (n, 2) in
+    xy (the first candidate if none is), without a host sync."""
+    far = torch.linalg.norm(candidates - other.unsqueeze(1), dim=-1) >= MIN_CUBE_DISTANCE
+    first = torch.argmax(far.to(torch.uint8), dim=1)
+    return candidates[torch.arange(candidates.shape[0], device=candidates.device), first]
+
+
+class GraspedStarts:
+    """Resets with cube A already in the closed hand (``env.graspedResetFraction`` of them): A lifted GRASPED_LIFT
+    above its resting place, centred between the finger pads, the fingers on its faces (each opened A's half-width),
+    the gripper commanded closed, the hand straight down and turned to A's yaw (modulo a quarter turn, a cube's
+    symmetry). The arm poses are solved once, by damped least squares on the hand's kinematics
+    (franka.ArmKinematics), for GRASP_POSES draws of A's start place and yaw from the reset's own distribution; a
+    grasped reset takes one of them at random, and B is drawn anew until it is far enough from A."""
+
+    def __init__(self, task: FrankaCubeStack) -> None:
+        self.task, dev = task, task.device
+        k, numbers = GRASP_POSES, task.env_numbers
+        xy = task.table_centre + numbers["startPositionNoise"] * (2.0 * torch.rand((k, 2), device=dev) - 1.0)
+        yaw = numbers["startRotationNoise"] * (2.0 * torch.rand(k, device=dev) - 1.0)
+        pos = torch.cat((xy, torch.full((k, 1), TABLE_TOP + CUBE_A_SIZE / 2.0 + GRASPED_LIFT, device=dev)), dim=1)
+        hand_yaw = yaw - (math.pi / 2.0) * torch.round(yaw / (math.pi / 2.0))  # within a quarter turn of the start
+        c, s, zero, one = torch.cos(hand_yaw), torch.sin(hand_yaw), torch.zeros_like(yaw), torch.ones_like(yaw)
+        # the grasp frame's axes as columns: x along the hand's yaw, y (the fingers' opening) x turned -90 degrees
+        # about the vertical, z (the approach) straight down: at yaw 0 the start pose's orientation
+        rot = torch.stack((torch.stack((c, s, zero), 1), torch.stack((s, -c, zero), 1),
+                           torch.stack((zero, zero, -one), 1)), dim=2)
+        arm = task.arm
+        q, error = ArmKinematics(task.sim, arm.grasp_site).solve(pos, rot, task.start_dof_pos[:7],
+                                                                 arm.dof_lower[:7], arm.dof_upper[:7])
+        reached = (error < 1e-5).cpu()  # once, at construction
+        if not bool(reached.any()):
+            raise ConfigError(f"env.graspedResetFraction={task.grasped_fraction} is invalid with "
+                              f"env.startPositionNoise={numbers['startPositionNoise']}: the hand reaches none of "
+                              "cube A's start places; give 0 or a smaller noise")
+        keep = reached.nonzero().flatten().to(dev)
+        fingers = torch.full((len(keep), 2), CUBE_A_SIZE / 2.0, device=dev)
+        self.dof_pos = torch.cat((q[keep].float(), fingers), dim=1)  # (K, 9)
+        self.pos_a, self.quat_a = pos[keep], quat_from_yaw(yaw[keep])
+
+    def draw(self, dof_pos: torch.Tensor, pos_a: torch.Tensor, quat_a: torch.Tensor,
+             pos_b: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Which envs start grasped (n,) and the reset's arm joints, A's pose and B's position with those envs'
+        replaced."""
+        task, n, dev = self.task, dof_pos.shape[0], dof_pos.device
+        grasped = torch.rand(n, device=dev) < task.grasped_fraction
+        pick = torch.randint(self.dof_pos.shape[0], (n,), device=dev)
+        noise = task.env_numbers["startPositionNoise"]
+        candidates = task.table_centre + noise * (2.0 * torch.rand((n, CANDIDATES, 2), device=dev) - 1.0)
+        xy_b = first_far(candidates, self.pos_a[pick, :2])
+        rows = grasped.unsqueeze(1)
+        new_b = torch.cat((xy_b, pos_b[:, 2:]), dim=1)
+        return (grasped, torch.where(rows, self.dof_pos[pick], dof_pos), torch.where(rows, self.pos_a[pick], pos_a),
+                torch.where(rows, self.quat_a[pick], quat_a), torch.where(rows, new_b, pos_b))
 
 
 def cube_stack_terms(cube_a: torch.Tensor, cube_b: torch.Tensor, grasp: torch.Tensor, tip_left: torch.Tensor,

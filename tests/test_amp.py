@@ -1,0 +1,133 @@
+"""The AMP learner feature (learning/amp.py) against formulas written here (issue 73)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from isaacgymenvs_mw.learning.amp import (
+    AMPConfig,
+    AMPVecEnv,
+    Discriminator,
+    ReplayBuffer,
+    discriminator_loss,
+    style_reward,
+    with_amp,
+)
+from isaacgymenvs_mw.learning.vecenv import EpisodeStats
+from isaacgymenvs_mw.utils.errors import ConfigError
+
+
+def test_style_reward_formula():
+    d = torch.tensor([-3.0, -1.0, 0.0, 1.0, 2.5, 4.0])
+    want = [max(0.0, 1.0 - 0.25 * (x - 1.0) ** 2) * 2.0 for x in d.tolist()]
+    torch.testing.assert_close(style_reward(d, "lsgan", 2.0), torch.tensor(want))
+    p = torch.sigmoid(d)
+    torch.testing.assert_close(style_reward(d, "bce", 2.0), -2.0 * torch.log(torch.clamp(1 - p, min=1e-4)))
+
+
+def test_discriminator_loss_formula():
+    torch.manual_seed(0)
+    cfg = AMPConfig(hidden_dims=(8,), grad_penalty=5.0, logit_reg=0.05, weight_decay=1e-4)
+    disc = Discriminator(3, cfg.hidden_dims, "tanh")
+    policy, motion = torch.randn(6, 3), torch.randn(5, 3)
+    parts = discriminator_loss(disc, policy, motion, cfg)
+    # by hand: tanh layer then a linear logit, its input gradient W2 diag(1 - h^2) W1
+    w1, b1, w2, b2 = disc.trunk[0].weight, disc.trunk[0].bias, disc.logit.weight, disc.logit.bias
+    with torch.no_grad():
+        def d_of(x):
+            return (torch.tanh(x @ w1.T + b1) @ w2.T + b2).squeeze(-1)
+        h = torch.tanh(motion @ w1.T + b1)
+        grad = ((1 - h ** 2) * w2) @ w1
+        want = (0.5 * (((d_of(motion) - 1) ** 2).mean() + ((d_of(policy) + 1) ** 2).mean())
+                + 5.0 * (grad ** 2).sum(-1).mean() + 0.05 * (w2 ** 2).sum()
+                + 1e-4 * ((w1 ** 2).sum() + (w2 ** 2).sum()))
+    torch.testing.assert_close(parts["loss"].detach(), want)
+    parts["loss"].backward()  # the penalty's graph is differentiable
+    assert w1.grad is not None and torch.isfinite(w1.grad).all()
+
+
+def test_replay_buffer_ring_and_keep_prob():
+    buf = ReplayBuffer(5, 1, "cpu", keep_prob=0.0)
+    buf.store(torch.arange(3.0).view(-1, 1))
+    assert buf.count == 3
+    buf.store(torch.arange(3.0, 7.0).view(-1, 1))  # not yet full: all kept, the ring wraps
+    assert buf.count == 5 and sorted(buf.data.flatten().tolist()) == [2.0, 3.0, 4.0, 5.0, 6.0]
+    buf.store(torch.full((4, 1), 9.0))  # full, keep_prob 0: nothing new
+    assert 9.0 not in buf.data.flatten().tolist()
+
+
+class _Task:
+    num_envs = 4
+
+    def __init__(self):
+        self.amp_obs = torch.zeros(4, 3)
+
+    def fetch_amp_obs_demo(self, n):
+        return torch.ones(n, 3)
+
+
+class _Env:
+    device = "cpu"
+
+    def __init__(self):
+        self.task = _Task()
+        self.stats = EpisodeStats(4, "cpu")
+
+    def step(self, actions):
+        self.task.amp_obs = torch.randn(4, 3) * 0.1
+        return {}, torch.full((4,), 0.5), torch.zeros(4, dtype=torch.bool), {
+            "nonfinite_resets": torch.tensor([False, False, False, True])}
+
+
+def test_wrapper_mixes_rewards_and_trains_each_rollout():
+    torch.manual_seed(0)
+    train = {"runner": {"num_steps_per_env": 2},
+             "amp": {"task_reward_w": 0.5, "disc_reward_w": 2.0, "hidden_dims": [16], "minibatch_size": 8,
+                     "updates_per_rollout": 3, "replay_buffer_size": 64, "learning_rate": 1e-3}}
+    env = with_amp(_Env(), train)
+    assert isinstance(env, AMPVecEnv)
+    before = [p.clone() for p in env.disc.parameters()]
+    _, rew, _, _ = env.step(torch.zeros(4, 1))
+    with torch.no_grad():
+        d = env.disc(env.norm(env.task.amp_obs))
+    want = 0.5 * 0.5 + 2.0 * style_reward(d, "lsgan", 2.0)
+    want[3] = 0.25  # a blown-up world gets no style reward
+    torch.testing.assert_close(rew, want)
+    assert all(torch.equal(a, b) for a, b in zip(before, env.disc.parameters()))  # no update mid-rollout
+    env.step(torch.zeros(4, 1))
+    assert not all(torch.equal(a, b) for a, b in zip(before, env.disc.parameters()))
+    assert env.replay.count == 8
+    assert "AMP/disc_loss" in env.stats.pop()
+
+
+def test_bad_amp_settings_name_the_key():
+    with pytest.raises(ConfigError, match=r"train\.amp\.loss"):
+        with_amp(_Env(), {"runner": {"num_steps_per_env": 2}, "amp": {"loss": "wgan"}})
+    with pytest.raises(ConfigError, match=r"train\.amp: unknown key"):
+        with_amp(_Env(), {"runner": {"num_steps_per_env": 2}, "amp": {"disc_coef": 5}})
+    plain = _Env()
+    assert with_amp(plain, {"runner": {"num_steps_per_env": 2}}) is plain
+
+
+def test_two_training_iterations_with_amp(tmp_path):
+    """HumanoidAMP trains 2 rsl-rl iterations through the wrapper; the discriminator learns once per rollout."""
+    import isaacgymenvs_mw
+    from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
+    from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+    from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+    train = to_dict(compose_config(["task=HumanoidAMP"]).train)
+    train["runner"].update(num_steps_per_env=4, max_iterations=2, logger="tensorboard")
+    for part in ("actor", "critic"):
+        train[part]["hidden_dims"] = [32, 32]
+    train["amp"].update(hidden_dims=[32], minibatch_size=16, updates_per_rollout=2, replay_buffer_size=256)
+    task = isaacgymenvs_mw.make(task="HumanoidAMP", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True)
+    env = with_amp(RslRlVecEnv(task), train)
+    cfg = rsl_rl_config(train)
+    cfg.pop("max_iterations")
+    before = [p.clone() for p in env.disc.parameters()]
+    runner = Runner(env, cfg, log_dir=None, device="cpu")
+    runner.learn(2)
+    assert env.replay.count == 2 * 4 * 2
+    assert not all(torch.equal(a, b) for a, b in zip(before, env.disc.parameters()))

@@ -1,0 +1,88 @@
+"""HumanoidAMP (issue 73): builds, steps, and starts its episodes from the motion it imitates."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import isaacgymenvs_mw
+from isaacgymenvs_mw.tasks.amp.observations import humanoid_observation
+from isaacgymenvs_mw.utils.errors import ConfigError
+from isaacgymenvs_mw.utils.rotations import quat_rotate
+
+N = 3
+
+
+@pytest.fixture(scope="module")
+def task():
+    t = isaacgymenvs_mw.make(task="HumanoidAMP", num_envs=N, sim_device="cpu", rl_device="cpu", headless=True)
+    t.reset()
+    return t
+
+
+def _same_rotation(a, b):
+    return (torch.sum(a * b, dim=-1).abs() > 1 - 1e-5).all()
+
+
+def test_sizes(task):
+    assert task.num_obs == 105 and task.num_actions == 28  # IGE's NUM_OBS and NUM_ACTIONS
+    assert task.amp_obs.shape == (N, 210) and task.fetch_amp_obs_demo(5).shape == (5, 210)
+
+
+def test_reset_pose_is_the_sampled_reference_pose(task):
+    lib, all_envs = task.motion_lib, torch.ones(N, dtype=torch.bool)
+    rng = torch.get_rng_state()
+    task.reset_envs(all_envs)
+    torch.set_rng_state(rng)
+    ids = lib.sample_motions(N)
+    times = lib.sample_times(ids)
+    s = lib.state(ids, times)
+    sim = task.sim
+    torch.testing.assert_close(sim.root_pos, s.root_pos)
+    assert _same_rotation(sim.root_quat, s.root_rot)
+    torch.testing.assert_close(sim.dof_pos, s.dof_pos)
+    torch.testing.assert_close(sim.dof_vel, s.dof_vel)
+    torch.testing.assert_close(sim.root_lin_vel, s.root_vel)
+    torch.testing.assert_close(quat_rotate(sim.root_quat, sim.root_ang_vel), s.root_ang_vel, atol=1e-5, rtol=1e-5)
+    # MuJoCo's kinematics of the written state puts the key bodies where the motion's skeleton has them, up to the
+    # difference between the library's lerped key positions and the slerped joints between two frames (mm)
+    torch.testing.assert_close(sim.xpos[:, task.key_ids], s.key_pos, atol=1e-2, rtol=0)
+    # the AMP history: now, then the motion one policy step earlier
+    past = lib.state(ids, times - task.control_dt)
+    want = humanoid_observation(past.root_pos, past.root_rot, past.root_vel, past.root_ang_vel, past.dof_pos,
+                                past.dof_vel, past.key_pos, task.group_sizes, task.local_root_obs)
+    torch.testing.assert_close(task._amp_hist[:, 1], want, atol=1e-5, rtol=1e-5)
+
+
+def test_steps_reward_and_amp_transition(task):
+    task.reset_envs(torch.ones(N, dtype=torch.bool))
+    before = task._amp_hist[:, 0].clone()
+    obs, rew, reset, _ = task.step(torch.zeros(N, 28))
+    assert torch.equal(rew, torch.ones(N))  # IGE's task reward
+    assert torch.isfinite(obs["obs"]).all()
+    kept = ~reset.bool()
+    # the step's transition: the state before the step, then after it
+    torch.testing.assert_close(task.amp_obs[kept, 105:], before[kept])
+    torch.testing.assert_close(task.amp_obs[kept, :105], obs["obs"][kept])
+    # the PD targets are IGE's offset + scale x action; zero action: the middle of each range
+    torch.testing.assert_close(task.sim.ctrl, task.pd_offset.expand(N, -1))
+
+
+def test_fall_ends_the_episode(task):
+    task.reset_envs(torch.ones(N, dtype=torch.bool))
+    sim = task.sim
+    lying = torch.tensor([0.7071068, 0.7071068, 0.0, 0.0]).expand(N, 4)  # on its side (90 deg about x), low
+    sim.write_state(torch.ones(N, dtype=torch.bool), root_pos=torch.tensor([0.0, 0.0, 0.2]).expand(N, 3),
+                    root_quat=lying, root_lin_vel=torch.zeros(N, 3), root_ang_vel=torch.zeros(N, 3),
+                    dof_pos=task.default_dof_pos.expand(N, -1), dof_vel=torch.zeros(N, 28))
+    ended = torch.zeros(N, dtype=torch.bool)
+    for _ in range(6):
+        _, _, reset, extras = task.step(torch.zeros(N, 28))
+        ended |= reset.bool() & ~extras["time_outs"].bool()
+    assert ended.all()
+
+
+def test_bad_state_init_names_the_key():
+    with pytest.raises(ConfigError, match=r"env\.stateInit"):
+        isaacgymenvs_mw.make(task="HumanoidAMP", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
+                             overrides=["task.env.stateInit=Sometimes"])
