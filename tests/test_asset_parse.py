@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from isaacgymenvs_mw.sim.builder import load_spec
+from isaacgymenvs_mw.sim.asset_loading import load_spec
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 INERTIAL = ('<inertial><origin xyz="0.2 0 0"/><mass value="1"/>'

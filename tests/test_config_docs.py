@@ -96,7 +96,7 @@ def test_documented_override_reaches_the_joint_table():
     """The Anymal line of the docs, composed as train.py composes it, gives 60 to every HFE and KFE joint's drive and
     leaves the HAA joints at 80; the bracketed key also selects joints by the project's one name rule."""
     from isaacgymenvs_mw.sim import request_from_config
-    from isaacgymenvs_mw.sim.builder import match_joint_numbers
+    from isaacgymenvs_mw.sim.joint_tables import match_joint_numbers
     from isaacgymenvs_mw.tasks.base.sim_factory import ASSETS_DIR
     from isaacgymenvs_mw.utils.config import compose_config, to_dict
 

@@ -21,7 +21,8 @@ from omegaconf import OmegaConf
 from conftest import TESTS_DIR
 from isaacgymenvs_mw.sim import build_model, request_from_config
 from isaacgymenvs_mw.sim import builder as builder_module
-from isaacgymenvs_mw.sim.builder import match_body_names, match_joint_numbers, match_joint_values, name_matches
+from isaacgymenvs_mw.sim.joint_tables import match_body_names, match_joint_numbers, match_joint_values
+from isaacgymenvs_mw.sim.names import name_matches
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 

@@ -216,7 +216,7 @@ def test_full_size_map_gives_no_false_deep_contacts_far_from_its_centre():
     centre got a contact metres deep and flew off. The builder makes one heightfield per cell (and boxes for the
     border), so spheres pressed into the full-size map anywhere move as MuJoCo C moves them."""
     from isaacgymenvs_mw.sim import Simulator
-    from isaacgymenvs_mw.sim.builder import _terrain_parts
+    from isaacgymenvs_mw.sim.ground import terrain_parts as _terrain_parts
 
     cfg = parse_terrain_config({"type": "heightfield"})  # the shipped size: 10 x 20 cells of 8 m, 25 m border
     terrain = generate_terrain(cfg)

@@ -171,8 +171,9 @@ def compare_step(first, second, first_result: tuple, second_result: tuple, worst
 def task_tensors(task) -> dict[str, torch.Tensor]:
     """Every tensor held directly by the task, its episode, its reward terms and its randomisation layer, by name
     (the state a step carries to the next beside the simulator's; constants are included, harmlessly)."""
+    randomizer = getattr(task, "randomizer", None)
     owners = {"task": task, "episode": task.episode, "rewards": getattr(task, "rewards", None),
-              "randomizer": getattr(task, "randomizer", None)}
+              **{f"randomizer.{name}": part for name, part in (randomizer.parts() if randomizer else {}).items()}}
     return {f"{owner}.{name}": value for owner, obj in owners.items() if obj is not None
             for name, value in vars(obj).items() if isinstance(value, torch.Tensor)}
 

@@ -7,24 +7,24 @@ from isaacgymenvs_mw.sim.gl import import_mujoco  # noqa: E402
 
 import_mujoco()  # a MUJOCO_GL you set whose library is missing: one line saying what to install, not a traceback
 
-from isaacgymenvs_mw.sim.builder import (  # noqa: E402
-    DRIVE_MODES,
-    GroundPlane,
-    JointDrive,
-    ModelRequest,
+from isaacgymenvs_mw.sim.asset_loading import (  # noqa: E402
     SceneAsset,
-    SolverOptions,
     actuated_joints,
-    build_model,
     is_mjcf,
     load_spec,
+    movable_joint_names,
+)
+from isaacgymenvs_mw.sim.builder import ModelRequest, build_model
+from isaacgymenvs_mw.sim.drives import DRIVE_MODES, JointDrive
+from isaacgymenvs_mw.sim.ground import GroundPlane
+from isaacgymenvs_mw.sim.joint_tables import (
     match_body_names,
     match_joint_numbers,
     match_joint_values,
-    movable_joint_names,
 )
 from isaacgymenvs_mw.sim.kernels import set_verbose
 from isaacgymenvs_mw.sim.names import name_matches
+from isaacgymenvs_mw.sim.options import SolverOptions
 from isaacgymenvs_mw.sim.randomization import InertiaConstants, model_names
 from isaacgymenvs_mw.sim.request import (
     SIM_KEYS,

@@ -17,13 +17,27 @@ match the whole name: one rule, ``name_matches`` in ``sim/names.py`` (used by ``
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
-from isaacgymenvs_mw.sim.builder import (GeomContact, GroundPlane, JointDrive, ModelRequest, SceneAsset,
-                                          SolverOptions, actuated_joints, is_mjcf, load_spec, match_body_names,
-                                          match_joint_numbers, match_joint_values, movable_joint_names)
+from isaacgymenvs_mw.sim.asset_loading import (
+    SceneAsset,
+    actuated_joints,
+    is_mjcf,
+    load_spec,
+    movable_joint_names,
+)
+from isaacgymenvs_mw.sim.builder import ModelRequest
 from isaacgymenvs_mw.sim.cameras import camera_specs
+from isaacgymenvs_mw.sim.drives import JointDrive
+from isaacgymenvs_mw.sim.geom_contacts import GeomContact
+from isaacgymenvs_mw.sim.ground import GroundPlane
+from isaacgymenvs_mw.sim.joint_tables import (
+    match_body_names,
+    match_joint_numbers,
+    match_joint_values,
+)
+from isaacgymenvs_mw.sim.options import SolverOptions
 from isaacgymenvs_mw.sim.sensors import sensor_specs
 from isaacgymenvs_mw.utils.config import check_entry, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError, MissingFileError

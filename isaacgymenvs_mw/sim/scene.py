@@ -1,7 +1,7 @@
 """Per-asset views of a scene: which columns of qpos / qvel / ctrl belong to which asset, as zero-copy torch views.
 
 A scene is the main asset (unprefixed names; the Simulator's own ``dof_pos``, ``root_pos``, ...) plus the assets of
-``env.assets``, each attached under its name prefix (``sim/builder.py``, which records each asset's name and prefix
+``env.assets``, each attached under its name prefix (``sim/asset_loading.py``, which records each asset's name and prefix
 in the model as a custom text element). ``Simulator.asset(name)`` returns the ``AssetView`` of one of them:
 
 * a free asset (``fixBaseLink: False``): ``root_pos`` (N, 3) world position of the root body's origin,

@@ -224,7 +224,7 @@ GROUND_PART_PREFIX = "ground/"  # the builder's names for the terrain's parts: g
 
 def ground_geoms(model) -> list[int]:
     """Ids of the geoms that make up the ground: the plane "ground", or a terrain's "ground/..." parts (one
-    heightfield per cell and the border boxes, see sim/builder.py)."""
+    heightfield per cell and the border boxes, see sim/ground.py)."""
     import mujoco
 
     names = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(model.ngeom))

@@ -38,12 +38,12 @@ class Episode:
     the worlds whose state or inputs were not finite. ``max_episode_length``: policy steps of the time limit."""
 
     def __init__(self, num_envs: int, device: str, max_episode_length: int, blowups: BlowupLog,
-                 shared_sequence: bool = True, run_steps: torch.Tensor | None = None) -> None:
+                 shared_sequence: bool = True) -> None:
         n, dev = num_envs, device
         # The run's env steps per env so far, a () float32 device tensor: randomisation schedules and the penalty
-        # curriculum read it (given here when the randomisation layer, built first, holds it already), and a resumed
-        # run or test mode sets it from the checkpoint (VecTask.set_train_info).
-        self.run_steps = run_steps if run_steps is not None else torch.zeros((), device=dev, dtype=torch.float32)
+        # curriculum read it (Randomizer.follow_clock), and a resumed run or test mode sets it from the checkpoint
+        # (VecTask.set_train_info).
+        self.run_steps = torch.zeros((), device=dev, dtype=torch.float32)
         self.max_episode_length = max_episode_length
         # The task runs VecTask's after-physics sequence (terminations, time-outs, reward, resets), which sets
         # timeout_buf (close_step); a ported IsaacGymEnvs task may replace it with a post_physics_step of its own.

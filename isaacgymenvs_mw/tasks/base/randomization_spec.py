@@ -170,7 +170,7 @@ def _interval_steps(raw: dict, key: str, control_dt: float) -> int:
     if len(given) != 1:
         raise ConfigError(f"{key}: an interval draw needs exactly one of interval_s (seconds) or interval_steps")
     if given[0] == "interval_s":
-        steps = int(round(float(raw["interval_s"]) / control_dt))
+        steps = round(float(raw["interval_s"]) / control_dt)
     else:
         steps = int(raw["interval_steps"])
     if steps < 1:

@@ -38,7 +38,7 @@ class RewardTerms:
         only_positive: clamp the sum of the terms at zero (legged_gym's ``only_positive_rewards``), except the
             ``unclamped`` terms, added after the clamp (a fall still costs something when all else is clamped).
         penalty_curriculum: ``{start, steps}`` (``key``.penaltyCurriculum) or None; see ``_init_penalty_curriculum``.
-        step_count: env steps per env so far (the randomisation layer's counter), read by the curriculum.
+        step_count: env steps per env so far (the episode's clock, Episode.run_steps), read by the curriculum.
         key: the YAML section the scales come from, for error messages.
     """
 

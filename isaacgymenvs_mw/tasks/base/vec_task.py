@@ -96,8 +96,7 @@ class VecTask(IGESurface):
 
         # Parsed before the model is built: it decides which Model fields get one value per world.
         self.randomizer = Randomizer(config.get("task"), sim_dt(config.get("sim", {})) * self.control_freq_inv,
-                                     self.num_envs, self.sim_device,
-                                     step_count=torch.zeros((), device=self.sim_device, dtype=torch.float32))
+                                     self.num_envs, self.sim_device)
         self.sim: Simulator | None = None
         self.create_sim()
         if self.sim is None:
@@ -146,8 +145,8 @@ class VecTask(IGESurface):
     def allocate_buffers(self) -> None:
         n, dev = self.num_envs, self.device
         self.episode = Episode(n, dev, self.max_episode_length, BlowupLog(self.sim),
-                               shared_sequence=type(self).post_physics_step is VecTask.post_physics_step,
-                               run_steps=self.randomizer.step_count)  # the episode counts the clock the layer reads
+                               shared_sequence=type(self).post_physics_step is VecTask.post_physics_step)
+        self.randomizer.follow_clock(self.episode.run_steps)  # the episode counts the clock the schedules read
         self.extras: dict[str, Any] = {}
         self.metrics = TaskMetrics(self.declared_metrics, n, dev)  # recorded by the task's step, read by learning/
         self._all_envs = torch.ones(n, device=dev, dtype=torch.bool)
