@@ -18,34 +18,43 @@ in units of running return statistics, the rollout and GAE stay in real units (`
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from itertools import chain
 
 import torch
 from rsl_rl.algorithms import PPO
-from rsl_rl.models import MLPModel
 from rsl_rl.modules import EmpiricalNormalization
 from rsl_rl.modules.distribution import GaussianDistribution as RslRlGaussian
 from rsl_rl.storage import RolloutStorage
-from rsl_rl.utils import resolve_class, resolve_obs_groups
 from tensordict import TensorDict
 
-# The normalisers and loss terms have modules of their own; their names stay importable from here too.
-from isaacgymenvs_mw.learning.models import SharedTrunkActor, SharedTrunkCritic
-from isaacgymenvs_mw.learning.normalizers import (VALUE_NORMALIZER_KEY, ClippedEmpiricalNormalization,
-                                                  ValueNormalizer, _RealUnitCritic)
+# The normalisers, loss terms, learning rate, mini-batches and construction have modules of their own; the names
+# tests and the runner import stay importable from here too.
+from isaacgymenvs_mw.learning.normalizers import (
+    VALUE_NORMALIZER_KEY,
+    ClippedEmpiricalNormalization,
+    ValueNormalizer,
+    _RealUnitCritic,
+)
+from isaacgymenvs_mw.learning.ppo_batches import MiniBatchUpdate
+from isaacgymenvs_mw.learning.ppo_construction import construct_algorithm
+from isaacgymenvs_mw.learning.ppo_learning_rate import (
+    LR_MAX,
+    LR_MIN,
+    DeviceLearningRate,
+)
 from isaacgymenvs_mw.learning.ppo_losses import bounds_loss, rl_games_kl
-from isaacgymenvs_mw.learning.train_config import (GRAD_CLIP_SCOPES, KL_FORMS, KL_SCHEDULES,
-                                                   OBS_NORMALIZATION_FORMS)
+from isaacgymenvs_mw.learning.train_config import (
+    GRAD_CLIP_SCOPES,
+    KL_FORMS,
+    KL_SCHEDULES,
+    OBS_NORMALIZATION_FORMS,
+)
 from isaacgymenvs_mw.utils.config import boolean, one_of, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-LR_MIN, LR_MAX, LR_FACTOR = 1e-5, 1e-2, 1.5  # rsl-rl-lib's adaptive-schedule constants (bounds: the defaults)
-EAGER_UPDATES_BEFORE_CAPTURE = 1
 
-
-
-class SyncFreePPO(PPO):
+class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
     """rsl-rl-lib's PPO with a host-sync-free update (the rollout side is inherited, un-normalising values only with
     ``normalize_value``).
 
@@ -165,54 +174,8 @@ class SyncFreePPO(PPO):
     @staticmethod
     def construct_algorithm(obs: TensorDict, env, cfg: dict, device: str) -> PPO:
         """rsl-rl-lib's construction; with ``algorithm.share_trunk`` the critic is the value head of the actor's
-        trunk (``SharedTrunkCritic``, rl_games' ``separate: False``) instead of the ``critic`` section's model."""
-        if "share_trunk" not in cfg["algorithm"]:
-            return PPO.construct_algorithm(obs, env, cfg, device)
-        algorithm = dict(cfg["algorithm"])
-        share = boolean(algorithm.pop("share_trunk"), "train.algorithm.share_trunk")
-        built = {**cfg, "algorithm": algorithm}
-        if share:
-            groups = resolve_obs_groups(obs, cfg["obs_groups"], ["actor", "critic"])
-            if _same_observations(obs, groups["critic"], groups["actor"]):
-                # A task without privileged states hands the policy's tensor to the critic group too (the hands'
-                # `critic: [critic]` then means the policy's observation): the trunk reads the actor's groups.
-                built["obs_groups"] = {**groups, "critic": list(groups["actor"])}
-            else:
-                raise ConfigError(
-                    f"train.algorithm.share_trunk=True needs train.runner.obs_groups.critic equal to "
-                    f"train.runner.obs_groups.actor (the value reads the policy's trunk), got "
-                    f"{list(groups['critic'])} and {list(groups['actor'])} (a privileged critic state, e.g. "
-                    f"task.env.asymmetric_observations=True); give train.runner.obs_groups.critic="
-                    f"{list(groups['actor'])} or train.algorithm.share_trunk=False")
-            # rsl-rl-lib builds the actor, then the critic from the class its section names: the actor is kept on
-            # the way so that the critic can be its value head. An MLPModel is built as the same network that hands
-            # its trunk's features to the value head (any other class is refused by SharedTrunkCritic).
-            actor_class, actor_cfg = resolve_class(dict(cfg["actor"]))
-            if actor_class is MLPModel:
-                actor_class = SharedTrunkActor
-            models: list = []
-
-            def actor(*args, **kwargs):
-                models.append(actor_class(*args, **kwargs))
-                return models[0]
-
-            built["actor"] = {**actor_cfg, "class_name": actor}
-            built["critic"] = {"class_name": lambda *args, **kwargs: SharedTrunkCritic(models[0])}
-        alg = PPO.construct_algorithm(obs, env, built, device)
-        cfg["obs_groups"] = built["obs_groups"]  # resolved in place by rsl-rl-lib, which the runner reads after
-        return alg
-
-    @property
-    def _adaptive(self) -> bool:
-        return self.desired_kl is not None and self.schedule == "adaptive"
-
-    def _refuse_without_adaptive(self, key: str, value) -> None:
-        """A setting of the adaptive rule given where the rate never moves: an error rather than silently ignored."""
-        if not self._adaptive:
-            raise ConfigError(
-                f"{key}={value!r} has no effect: the learning rate moves only with "
-                f"train.algorithm.schedule=adaptive and a train.algorithm.desired_kl (got "
-                f"schedule={self.schedule!r}, desired_kl={self.desired_kl!r}); remove it or set both")
+        trunk (``SharedTrunkCritic``, rl_games' ``separate: False``; learning/ppo_construction.py)."""
+        return construct_algorithm(obs, env, cfg, device)
 
     def _need_gaussian(self, setting: str, why: str) -> None:
         if not isinstance(getattr(self.actor, "distribution", None), RslRlGaussian):
@@ -238,22 +201,6 @@ class SyncFreePPO(PPO):
         for model in models:
             model.obs_normalizer = ClippedEmpiricalNormalization(model.obs_normalizer, clip,
                                                                  rl_games_form=form == "rl_games")
-
-    def _check_rate_bounds(self, low, high) -> tuple[float, float]:
-        key = "train.algorithm.learning_rate"
-        low = real_number(low, f"{key}_min", 0.0, low_open=True)
-        high = real_number(high, f"{key}_max", 0.0, low_open=True)
-        if not self._adaptive:
-            for name, value, default in (("min", low, LR_MIN), ("max", high, LR_MAX)):
-                if value != default:
-                    self._refuse_without_adaptive(f"{key}_{name}", value)
-            return low, high
-        if low > high:
-            raise ConfigError(f"{key}_min={low!r} is invalid: give a number <= {key}_max ({high!r})")
-        if not low <= self.learning_rate <= high:
-            raise ConfigError(f"{key}={self.learning_rate!r} is invalid with the adaptive schedule: give a number "
-                              f"within [{key}_min, {key}_max] = [{low!r}, {high!r}]")
-        return low, high
 
     def _resolve_capture(self, value: bool | str) -> bool:
         unmet = [need for need, missing in (
@@ -292,42 +239,6 @@ class SyncFreePPO(PPO):
         finally:
             self.critic = critic
 
-    # ------------------------------------------------------------------ learning rate on the device
-
-    def _install_device_learning_rate(self) -> None:
-        """Put the optimizer's current rate into device tensors that Adam reads at each step."""
-        rate = float(self.optimizer.param_groups[0]["lr"])
-        if self._adaptive:  # a checkpoint's rate from outside this run's bounds (a resume with narrower ones)
-            rate = min(max(rate, self.learning_rate_min), self.learning_rate_max)
-        self.learning_rate = rate
-        # The rule runs in float64 like rsl-rl-lib's Python floats; Adam reads the float32 copy.
-        self._lr64 = torch.tensor(rate, dtype=torch.float64, device=self.device)
-        self._lr = torch.tensor(rate, dtype=torch.float32, device=self.device)
-        # Fused Adam takes a device-tensor rate without reading it, and skips a step on the device when told to
-        # (``found_inf``, set per mini-batch by ``_optimisation_steps``), on CUDA and on the CPU.
-        flags = {"fused": True, "foreach": False, "capturable": False}
-        for group in self.optimizer.param_groups:
-            group["lr"] = self._lr
-            group.update(flags)
-        for param, state in self.optimizer.state.items():
-            if "step" in state:
-                state["step"] = state["step"].to(device=param.device if self._on_cuda else "cpu",
-                                                 dtype=torch.float32)
-        # A captured update reads the old rate and optimizer state: capture again from the next update on.
-        self.release_graph()
-
-    def _adapt_learning_rate(self, kl_mean: torch.Tensor, rl_games_rule: bool = False) -> None:
-        too_far = kl_mean > self.desired_kl * 2.0
-        too_close = kl_mean < self.desired_kl / 2.0
-        if not rl_games_rule:
-            # rsl-rl-lib's rule leaves the rate alone on a KL of 0 (an update's first mini-batch, its policy still
-            # the rollout's); rl_games' has no such condition, and its KL can be <= 0 where a std has collapsed.
-            too_close = too_close & (kl_mean > 0.0)
-        lowered = torch.clamp(self._lr64 / LR_FACTOR, min=self.learning_rate_min)
-        raised = torch.clamp(self._lr64 * LR_FACTOR, max=self.learning_rate_max)
-        self._lr64.copy_(torch.where(too_far, lowered, torch.where(too_close, raised, self._lr64)))
-        self._lr.copy_(self._lr64)
-
     # ------------------------------------------------------------------ update
 
     def update(self) -> dict[str, float]:
@@ -362,103 +273,6 @@ class SyncFreePPO(PPO):
             self.value_normalizer.update(st.values, st.returns)  # type: ignore[union-attr]
             st.values.copy_(self.value_normalizer.normalize(st.values))  # type: ignore[union-attr]
             st.returns.copy_(self.value_normalizer.normalize(st.returns))  # type: ignore[union-attr]
-
-    def run_mini_batches(self) -> torch.Tensor:
-        """All optimisation steps of one update, queued without a host read.
-
-        Returns the device tensor of summed [value loss, surrogate loss, entropy] over the mini-batches; with a
-        captured update it is the graph's output, overwritten by the next update.
-        """
-        if self._per_epoch_kl and self._kl_reference is None:  # outside any capture: the first update is eager
-            params = self.storage.distribution_params  # type: ignore[union-attr]
-            self._kl_reference = tuple(
-                torch.empty_like(p) if self._recurrent else p.new_empty((self._num_samples, *p.shape[2:]))
-                for p in params)
-        if self._recurrent:
-            return self._optimisation_steps(self._recurrent_batches())
-        # rsl-rl-lib's shuffle: one permutation per update, shared by its epochs
-        torch.randperm(self._num_samples, out=self._perm)
-        self._advantages.copy_(self.storage.advantages)
-        if not self.capture_update:
-            return self._optimisation_steps(self._feedforward_batches())
-        if self._graph is None:
-            if self._eager_updates < EAGER_UPDATES_BEFORE_CAPTURE:
-                return self._warm_up_update()
-            self._capture()
-        self._graph.replay()  # type: ignore[union-attr]
-        return self._graph_loss_sums  # type: ignore[return-value]
-
-    def release_graph(self) -> None:
-        """Free the captured update. With several GPUs the graph holds NCCL work, and leaving the process group
-        while it exists hangs every rank (pytorch/pytorch#115388): call this before ``destroy_process_group``."""
-        if self._graph is not None:
-            torch.cuda.synchronize(self.device)
-            self._graph.reset()
-        self._graph, self._graph_loss_sums, self._eager_updates = None, None, 0
-
-    def _warm_up_update(self) -> torch.Tensor:
-        """An eager update on a side stream, as CUDA graph capture asks: it creates Adam's state, cuBLAS workspaces
-        and autograd's stream bookkeeping before the graph records them."""
-        stream = torch.cuda.Stream(self.device)
-        stream.wait_stream(torch.cuda.current_stream(self.device))
-        with torch.cuda.stream(stream):
-            loss_sums = self._optimisation_steps(self._feedforward_batches())
-        torch.cuda.current_stream(self.device).wait_stream(stream)
-        self._eager_updates += 1
-        return loss_sums
-
-    def _capture(self) -> None:
-        """Record every mini-batch step of an update (forward, backward, rate, clip, Adam) as one CUDA graph over
-        fixed buffers, so that an update is one launch instead of thousands of kernel launches."""
-        for group in self.optimizer.param_groups:
-            group["capturable"] = True  # Adam keeps its step count on the device already (fused)
-        graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
-            self._graph_loss_sums = self._optimisation_steps(self._feedforward_batches())
-        self._graph = graph
-
-    @property
-    def _per_epoch_kl(self) -> bool:
-        return self._adaptive and self.kl_schedule == "per_epoch"
-
-    def _feedforward_batches(self) -> Iterator[RolloutStorage.Batch]:
-        """The mini-batches of rsl-rl-lib's feed-forward generator, read through the fixed shuffle and advantages.
-        With ``kl_schedule=per_epoch`` a batch's old distribution parameters are its slice of the stored ones (views
-        that ``_optimisation_steps`` overwrites), which start each update as the rollout's, in shuffled order."""
-        st = self.storage
-        size = self._num_samples // self.num_mini_batches
-        observations = st.observations.flatten(0, 1)
-        actions, values, returns = st.actions.flatten(0, 1), st.values.flatten(0, 1), st.returns.flatten(0, 1)
-        old_log_prob, advantages = st.actions_log_prob.flatten(0, 1), self._advantages.flatten(0, 1)
-        old_params = tuple(p.flatten(0, 1) for p in st.distribution_params)  # type: ignore[union-attr]
-        if self._per_epoch_kl:
-            for stored, rollout in zip(self._kl_reference, old_params):  # type: ignore[arg-type]
-                torch.index_select(rollout, 0, self._perm, out=stored)
-        for _ in range(self.num_learning_epochs):
-            for i in range(self.num_mini_batches):
-                idx = self._perm[i * size:(i + 1) * size]
-                reference = (tuple(p[i * size:(i + 1) * size] for p in self._kl_reference)  # type: ignore[union-attr]
-                             if self._per_epoch_kl else tuple(p[idx] for p in old_params))
-                yield RolloutStorage.Batch(
-                    observations=observations[idx], actions=actions[idx], values=values[idx],  # type: ignore[arg-type]
-                    advantages=advantages[idx], returns=returns[idx], old_actions_log_prob=old_log_prob[idx],
-                    old_distribution_params=reference)
-
-    def _recurrent_batches(self) -> Iterator[RolloutStorage.Batch]:
-        """rsl-rl-lib's recurrent mini-batches (contiguous blocks of envs); with ``kl_schedule=per_epoch`` their old
-        distribution parameters are the block of the stored ones, as in ``_feedforward_batches``."""
-        batches = self.storage.recurrent_mini_batch_generator(self.num_mini_batches, self.num_learning_epochs)
-        if not self._per_epoch_kl:
-            yield from batches
-            return
-        for stored, rollout in zip(self._kl_reference, self.storage.distribution_params):  # type: ignore[arg-type]
-            stored.copy_(rollout)
-        size = self.storage.num_envs // self.num_mini_batches
-        for k, batch in enumerate(batches):
-            i = k % self.num_mini_batches
-            batch.old_distribution_params = tuple(
-                p[:, i * size:(i + 1) * size] for p in self._kl_reference)  # type: ignore[union-attr]
-            yield batch
 
     def _optimisation_steps(self, batches: Iterable[RolloutStorage.Batch]) -> torch.Tensor:
         adaptive, per_epoch = self._adaptive, self._per_epoch_kl
@@ -577,9 +391,3 @@ class SyncFreePPO(PPO):
             self.value_normalizer.load_state_dict(loaded_dict[VALUE_NORMALIZER_KEY])
         self._install_device_learning_rate()
         return resume_iteration
-
-
-def _same_observations(obs: TensorDict, groups: list[str], other: list[str]) -> bool:
-    """Whether two observation groups give the same tensors (the same names, or names bound to one tensor)."""
-    return len(groups) == len(other) and all(
-        obs[a].data_ptr() == obs[b].data_ptr() and obs[a].shape == obs[b].shape for a, b in zip(groups, other))
