@@ -83,7 +83,7 @@ def test_a_native_crash_leaves_the_python_stack_in_the_log(tmp_path):
     assert "Fatal Python error: Segmentation fault" in out, out[-2000:]
     # the crashing thread's frames, newest first: ctypes' read, then up through the training loop
     crashed_in_learn = (r"Current thread 0x[0-9a-f]+.*\n"
-                        r"  File .*ctypes.*\n(  File .*\n)*  File .*runner\.py\", line \d+ in learn")
+                        r"  File .*ctypes.*\n(  File .*\n)*  File .*training_run\.py\", line \d+ in learn")
     assert re.search(crashed_in_learn, out), out[-2000:]
 
 

@@ -8,7 +8,6 @@ import os
 import signal
 import time
 from pathlib import Path
-import torch
 from omegaconf import DictConfig, OmegaConf
 
 from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
@@ -73,7 +72,7 @@ def evaluate_checkpoint(cfg: DictConfig, task, runner: TrainingRun, checkpoint: 
     print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
     print(f"[eval] written to {eval_path}", flush=True)
     task.close()
-    _leave_process_group(runner)
+    runner.leave_process_group()
     return result
 
 
@@ -110,7 +109,7 @@ def train(cfg: DictConfig, task, learner: Learner, runner: TrainingRun, resume: 
         if is_main:
             _report_end(summary, runner, run_dir, interrupted)
         task.close()
-        _leave_process_group(runner)
+        runner.leave_process_group()
     if interrupted is not None:
         interrupted.reported = True  # train.py only sets the exit status
         raise interrupted  # train.py turns it into exit status 128 + signal number
@@ -238,16 +237,6 @@ def seed_run(cfg: DictConfig, rank: int = 0) -> int:
 
 def _signal_number(err: KeyboardInterrupt) -> int:
     return int(getattr(err, "signum", signal.SIGINT))
-
-
-def _leave_process_group(runner: TrainingRun) -> None:
-    """multi_gpu=True: rsl-rl-lib's runner joined a NCCL group; leaving it lets each rank exit without NCCL's leak
-    warning. A captured update holds NCCL work that would make leaving hang, so it is freed first."""
-    release_graph = getattr(getattr(runner, "alg", None), "release_graph", None)  # SyncFreePPO; rsl-rl-lib's PPO captures nothing
-    if release_graph is not None:
-        release_graph()
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        torch.distributed.destroy_process_group()
 
 
 def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:

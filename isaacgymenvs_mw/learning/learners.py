@@ -1,9 +1,10 @@
 """The learning libraries a run can train with, behind one interface, chosen in one place.
 
 ``Learner`` is what the launcher (learning/launch.py) asks of a library: its config checks before the task is built,
-the runner it trains with (a ``TrainingRun``, which owns the iteration loop's bookkeeping), the iterations the run
-trains, and what its checkpoints hold. Each library has one implementation beside its runner: rsl-rl-lib's in
-learning/runner.py, rl_games' in learning/rl_games_runner.py. ``learner_for`` picks one from the train YAML's schema
+the runner it trains with (a ``TrainingRun``, which owns the training loop and calls the runner's one iteration), the
+iterations the run trains, and what its checkpoints hold. Each library has one implementation beside its runner and
+env adapter (a ``TaskEnv``, learning/vecenv.py): rsl-rl-lib's in learning/runner.py, rl_games' in
+learning/rl_games_runner.py. ``learner_for`` picks one from the train YAML's schema
 (rl_games' YAMLs, IsaacGymEnvs' included, have a ``params:`` section), so IsaacGymEnvs' YAMLs run unchanged. A new
 library is one module with a ``Learner`` subclass and its line in ``LEARNERS``.
 """

@@ -15,7 +15,6 @@ import contextlib
 import copy
 import io
 import tempfile
-import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -24,12 +23,10 @@ from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.learners import Learner
-from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config
 from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
-from isaacgymenvs_mw.learning.reporting import FirstCollectProgress
-from isaacgymenvs_mw.learning.training_run import TrainingRun, keep_stop_handler
-from isaacgymenvs_mw.learning.vecenv import EpisodeStats, record_step
+from isaacgymenvs_mw.learning.training_run import Iteration, TrainingRun
+from isaacgymenvs_mw.learning.vecenv import TaskEnv
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 from isaacgymenvs_mw.utils.config import to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -87,29 +84,18 @@ def fit_minibatches(config: dict, num_envs: int, announce: bool) -> None:
                   f"using {fitted}", flush=True)
 
 
-class RlGamesVecEnv:
+class RlGamesVecEnv(TaskEnv):
     """Presents a VecTask to rl_games (its IVecEnv contract: ``step`` returns the obs dict, rewards, dones and
-    extras, ``extras['time_outs']`` bootstraps), keeping the same device-side episode statistics as the rsl_rl
-    adapter. ``on_step`` (set by the runner) runs after each step: stop requests and progress lines."""
+    extras, ``extras['time_outs']`` bootstraps). ``reward_scale`` is reward_shaper.scale_value: rl_games applies it
+    to the reward it is given, and the statistics report the scaled reward it learns from. ``on_step`` (set by the
+    runner) runs after each step: stop requests and progress lines."""
 
     def __init__(self, task: VecTask, reward_scale: float = 1.0) -> None:
-        self.task = task
-        self.reward_scale = float(reward_scale)  # reward_shaper.scale_value: rl_games applies it, the statistics too
-        self.num_envs = task.num_envs
-        self.max_episode_length = task.max_episode_length
-        self.device = task.rl_device
-        self.stats = EpisodeStats(task.num_envs, task.rl_device)
-        self.stats.count("nonfinite_inputs", task.nonfinite_inputs_count)
+        super().__init__(task, reward_scale)
         self.on_step: Callable[[], None] | None = None
 
-    @property
-    def episode_length_buf(self) -> torch.Tensor:
-        return self.task.progress_buf
-
     def step(self, actions: torch.Tensor) -> tuple[dict, torch.Tensor, torch.Tensor, dict]:
-        obs_dict, rew, reset, extras = self.task.step(actions)
-        # the statistics report the reward rl_games learns from (its reward_shaper scales what it is given)
-        record_step(self.stats, self.task, rew * self.reward_scale if self.reward_scale != 1.0 else rew, reset, extras)
+        obs_dict, rew, _, reset, extras = self.step_task(actions)
         if self.on_step is not None:
             self.on_step()
         return _rl_games_obs(obs_dict), rew, reset, extras
@@ -175,7 +161,7 @@ class RlGamesRunner(TrainingRun):
         self.log_dir = log_dir
         self.params = params
         config = params["config"]
-        self.save_frequency = int(config.get("save_frequency", 0) or 0)
+        self.save_interval = int(config.get("save_frequency", 0) or 0)
         self.max_frames = int(config.get("max_frames", -1) or -1)
         self.score_to_win = config.get("score_to_win")
         self.max_iterations = int(config.get("max_epochs", -1))
@@ -241,66 +227,33 @@ class RlGamesRunner(TrainingRun):
             agent.model.load_state_dict(weights[0])
         self._started = True
 
-    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False,
-              max_train_time_s: float | None = None) -> None:
-        """Train as ``Runner.learn`` does (learning/runner.py), each iteration one rl_games ``train_epoch``."""
-        agent, env = self.agent, self.env
-        writer = None
-        if self.log_dir and self.is_main:
-            writer = make_writer({}, self.log_dir, self.experiment, self.run_config)
-            agent.writer = writer
-        if init_at_random_ep_len:
-            env.task.progress_buf.copy_(torch.randint_like(env.task.progress_buf, high=int(env.max_episode_length)))
-        start_it = self.current_learning_iteration
-        last_it = start_it + num_learning_iterations
-        steps = {"done": 0}
-        progress = FirstCollectProgress(start_it + 1, self.steps_per_env, time.perf_counter()) if self.is_main \
-            else None
+    def _attach_writer(self, writer) -> None:
+        self.agent.writer = writer  # rl_games' own scalars too, under its names, for curves from IsaacGymEnvs
 
-        def after_step() -> None:
-            steps["done"] += 1
-            if steps["done"] == 1:  # the first step compiles (torch, Triton): check after it
-                keep_stop_handler()
-            self._stop_if_requested()
-            if progress is not None and steps["done"] <= self.steps_per_env:
-                progress.step_done(steps["done"])
+    def _detach_writer(self, writer) -> None:
+        self.agent.writer = _NoWriter()
 
-        env.on_step = after_step
-        try:
-            self._start()
-            for it in range(start_it, last_it):
-                agent.epoch_num = it + 1
-                (step_s, play_s, update_s, total_s, a_losses, c_losses, b_losses, entropies, kls, last_lr,
-                 lr_mul) = agent.train_epoch()
-                agent.dataset.update_values_dict(None)  # the rollout's tensors are not needed until the next one
-                frames = agent.curr_frames * self.gpu_world_size
-                agent.frame += frames
-                self.current_learning_iteration = it + 1
-                losses = _mean_losses(surrogate=a_losses, value=c_losses, entropy=entropies, kl=kls,
-                                      bounds=b_losses)
-                if writer is not None:  # rl_games' own scalars too, under its names, for curves from IsaacGymEnvs
-                    agent.write_stats(total_s, it + 1, max(step_s, 1e-9), play_s, update_s, a_losses, c_losses, entropies, kls,
-                                      last_lr, lr_mul, agent.frame, total_s, play_s, frames)
-                restored = self._keep_learner_finite(it + 1)
-                self._log_iteration(writer, it, last_it, play_s, update_s, losses, 0, restored)
-                keep_stop_handler()
-                self._stop_if_requested()
-                if max_train_time_s is not None and self._budget_spent(max_train_time_s):
-                    self.time_budget_reached = True
-                    break
-                if self._reached_goal():
-                    break
-                self._save_every(it + 1, self.save_frequency)
-        except BaseException as err:
-            self._save_interrupted(start_it, err)
-            raise
-        else:
-            self._save_last()
-        finally:
-            env.on_step = None
-            if writer is not None:
-                writer.close()
-            agent.writer = _NoWriter()
+    def _begin_learning(self) -> None:
+        self.env.on_step = self._step_done
+        self._start()
+
+    def _end_learning(self) -> None:
+        self.env.on_step = None
+
+    def _train_iteration(self, it: int, writer) -> Iteration:
+        """One rl_games ``train_epoch`` (its rollout calls ``_step_done`` through the env's ``on_step``)."""
+        agent = self.agent
+        agent.epoch_num = it + 1
+        (step_s, play_s, update_s, total_s, a_losses, c_losses, b_losses, entropies, kls, last_lr,
+         lr_mul) = agent.train_epoch()
+        agent.dataset.update_values_dict(None)  # the rollout's tensors are not needed until the next one
+        frames = agent.curr_frames * self.gpu_world_size
+        agent.frame += frames
+        losses = _mean_losses(surrogate=a_losses, value=c_losses, entropy=entropies, kl=kls, bounds=b_losses)
+        if writer is not None:
+            agent.write_stats(total_s, it + 1, max(step_s, 1e-9), play_s, update_s, a_losses, c_losses, entropies,
+                              kls, last_lr, lr_mul, agent.frame, total_s, play_s, frames)
+        return Iteration(play_s, update_s, losses)
 
     def _reached_goal(self) -> bool:
         """rl_games' own ends: ``max_frames`` env steps, or a mean episode reward above ``score_to_win``."""

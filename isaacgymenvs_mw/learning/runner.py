@@ -1,9 +1,10 @@
-"""Training with rsl-rl-lib's PPO, configured by cfg/train/<Task>PPO.yaml: the learn loop and its wiring.
+"""Training with rsl-rl-lib's PPO, configured by cfg/train/<Task>PPO.yaml: one iteration and its wiring.
 
 rsl_rl's OnPolicyRunner builds PPO, saves and loads checkpoints and exports policies; its ``learn`` loop is
-replaced here so that a rollout never waits on the GPU (episode statistics stay on the device and are read
-once per iteration). What a run keeps and reports whatever the learner is lives in learning/training_run.py,
-learning/reporting.py and learning/best_checkpoint.py; test mode in learning/evaluation.py.
+replaced by this project's (learning/training_run.py), whose iteration here is a rollout that never waits on the GPU
+(episode statistics stay on the device and are read once per iteration) and PPO's update. What a run keeps and
+reports whatever the learner is lives in learning/training_run.py, learning/reporting.py and
+learning/best_checkpoint.py; test mode in learning/evaluation.py.
 """
 
 from __future__ import annotations
@@ -21,11 +22,10 @@ from rsl_rl.utils.log_writer import LogWriter
 from isaacgymenvs_mw.learning.guard import LearnerGuard, learner_tensors
 from isaacgymenvs_mw.learning.learners import Learner
 from isaacgymenvs_mw.learning.loggers import check_logger
-from isaacgymenvs_mw.learning.loggers import make_writer
 from isaacgymenvs_mw.learning.ppo import LR_MIN
-from isaacgymenvs_mw.learning.reporting import FirstCollectProgress, collapsed_noise, noise_collapse_line
+from isaacgymenvs_mw.learning.reporting import collapsed_noise, noise_collapse_line
 from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
-from isaacgymenvs_mw.learning.training_run import TrainingRun, keep_stop_handler
+from isaacgymenvs_mw.learning.training_run import Iteration, TrainingRun
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.utils.config import to_dict
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -81,8 +81,9 @@ def _check_class_name(key: str, name: object) -> None:
                       "module.path:ClassName")
 
 
-class Runner(OnPolicyRunner, TrainingRun):
-    """OnPolicyRunner with a sync-free rollout, one progress line per iteration, and a run summary."""
+class Runner(TrainingRun, OnPolicyRunner):
+    """OnPolicyRunner with a sync-free rollout inside this project's training loop (``TrainingRun.learn``, which
+    replaces OnPolicyRunner's)."""
 
     def __init__(self, env: RslRlVecEnv, train_cfg: dict, log_dir: str | None, device: str,
                  verbose: bool = False) -> None:
@@ -100,78 +101,63 @@ class Runner(OnPolicyRunner, TrainingRun):
     def current_learning_rate(self) -> float:
         return float(self.alg.learning_rate)
 
-    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False,
-              max_train_time_s: float | None = None) -> None:
-        """Train for ``num_learning_iterations``, or until ``max_train_time_s`` seconds of training (rollouts and
-        updates, as ``train_time_s`` counts them) are spent: the run then ends after that iteration as it would
-        after its last one (final checkpoint, summary)."""
-        env: RslRlVecEnv = self.env  # type: ignore[assignment]
-        writer = None
-        if self.log_dir and self.is_main:
-            writer = make_writer(self.cfg, self.log_dir, self.experiment, self.run_config)
-            self.logger.writer = writer  # rsl-rl-lib's save() uploads checkpoints through it (W&B)
-        if init_at_random_ep_len:
-            env.episode_length_buf = torch.randint_like(env.episode_length_buf, high=int(env.max_episode_length))
-        obs = env.get_observations().to(self.device)
+    @property
+    def save_interval(self) -> int:
+        return int(self.cfg["save_interval"])
+
+    def _logger_config(self) -> dict:
+        return self.cfg
+
+    def _attach_writer(self, writer) -> None:
+        self.logger.writer = writer  # rsl-rl-lib's save() uploads checkpoints through it (W&B)
+
+    def _detach_writer(self, writer) -> None:
+        if isinstance(writer, LogWriter):
+            writer.stop()
+        self.logger.writer = None
+
+    def _begin_learning(self) -> None:
+        self._obs = self.env.get_observations().to(self.device)
         self.alg.train_mode()
         if self.is_distributed:
             self.alg.broadcast_parameters()
-        steps = self.cfg["num_steps_per_env"]
-        start_it = self.current_learning_iteration
-        last_it = start_it + num_learning_iterations
-        it = start_it
         # On CUDA the host queues the update while the GPU still runs the rollout, so host clocks cannot split an
         # iteration; events on the GPU mark where the rollout ends.
         on_cuda = torch.device(self.device).type == "cuda"
-        rollout_end = torch.cuda.Event(enable_timing=True) if on_cuda else None
-        update_end = torch.cuda.Event(enable_timing=True) if on_cuda else None
-        try:
-            for it in range(start_it, last_it):
-                t0 = time.perf_counter()  # the GPU is idle here: the last iteration ended with a host read
-                progress = FirstCollectProgress(it + 1, steps, t0) if it == start_it and self.is_main else None
-                with torch.inference_mode():
-                    for step in range(steps):
-                        actions = self.alg.act(obs)
-                        obs, rewards, dones, extras = env.step(actions.to(env.device))
-                        obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
-                        self.alg.process_env_step(obs, rewards, dones, extras)
-                        if step == 0 and it == start_it:  # the first step compiles (torch, Triton): check after it
-                            keep_stop_handler()
-                        self._stop_if_requested()
-                        if progress is not None:
-                            progress.step_done(step + 1)
-                    self.alg.compute_returns(obs)
-                t1 = time.perf_counter()
-                if on_cuda:
-                    rollout_end.record()
-                losses = self.alg.update()  # ends by reading its losses, so the GPU has finished
-                t2 = time.perf_counter()
-                learn_s = t2 - t1
-                if on_cuda:
-                    update_end.record()
-                    update_end.synchronize()
-                    learn_s = rollout_end.elapsed_time(update_end) / 1000.0
-                self.current_learning_iteration = it + 1
-                skipped = self.alg.take_skipped_steps() if hasattr(self.alg, "take_skipped_steps") else 0
-                restored = self._keep_learner_finite(it + 1)
-                self._log_iteration(writer, it, last_it, t2 - t0 - learn_s, learn_s, losses, skipped, restored)
-                keep_stop_handler()
-                self._stop_if_requested()
-                if max_train_time_s is not None and self._budget_spent(max_train_time_s):
-                    self.time_budget_reached = True
-                    break
-                self._save_every(it + 1, int(self.cfg["save_interval"]))
-        except BaseException as err:
-            self._save_interrupted(start_it, err)
-            raise
-        else:  # saved while the writer is open, so that W&B uploads the final checkpoint too
-            self._save_last()
-        finally:
-            if writer is not None:
-                writer.close()
-                if isinstance(writer, LogWriter):
-                    writer.stop()
-                self.logger.writer = None
+        self._rollout_end = torch.cuda.Event(enable_timing=True) if on_cuda else None
+        self._update_end = torch.cuda.Event(enable_timing=True) if on_cuda else None
+
+    def _train_iteration(self, it: int, writer) -> Iteration:
+        """One rollout with a sync-free env step, then PPO's update."""
+        env: RslRlVecEnv = self.env  # type: ignore[assignment]
+        obs = self._obs
+        t0 = time.perf_counter()  # the GPU is idle here: the last iteration ended with a host read
+        with torch.inference_mode():
+            for _ in range(self.steps_per_env):
+                actions = self.alg.act(obs)
+                obs, rewards, dones, extras = env.step(actions.to(env.device))
+                obs, rewards, dones = obs.to(self.device), rewards.to(self.device), dones.to(self.device)
+                self.alg.process_env_step(obs, rewards, dones, extras)
+                self._step_done()
+            self.alg.compute_returns(obs)
+        self._obs = obs
+        t1 = time.perf_counter()
+        if self._rollout_end is not None:
+            self._rollout_end.record()
+        losses = self.alg.update()  # ends by reading its losses, so the GPU has finished
+        t2 = time.perf_counter()
+        learn_s = t2 - t1
+        if self._update_end is not None:
+            self._update_end.record()
+            self._update_end.synchronize()
+            learn_s = self._rollout_end.elapsed_time(self._update_end) / 1000.0
+        skipped = self.alg.take_skipped_steps() if hasattr(self.alg, "take_skipped_steps") else 0
+        return Iteration(t2 - t0 - learn_s, learn_s, losses, skipped)
+
+    def release(self) -> None:
+        release_graph = getattr(self.alg, "release_graph", None)  # SyncFreePPO; rsl-rl-lib's PPO captures nothing
+        if release_graph is not None:
+            release_graph()
 
     def save(self, path: str, infos: dict | None = None) -> None:
         """rsl-rl-lib's checkpoint, written whole or not at all (a full disk leaves no truncated model_*.pt), with the

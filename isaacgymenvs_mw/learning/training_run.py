@@ -1,32 +1,48 @@
-"""What a training run keeps and reports, whichever learner updates the policy (learning/runner.py: rsl-rl-lib's PPO;
-learning/rl_games_runner.py: rl_games'): the iteration's statistics and history (reported by learning/reporting.py),
-checkpoints (and the best one, learning/best_checkpoint.py), the time budget, stop requests and the learner's
-finiteness guard.
+"""The training loop and what a run keeps and reports, whichever learner updates the policy (each learner's runner
+is named in learning/learners.py): the iterations, the time budget, stop requests, checkpoints whatever ends the run
+(periodic, last, interrupted, and the best one, learning/best_checkpoint.py), the iteration's statistics and history
+(reported by learning/reporting.py) and the learner's finiteness guard.
 
-A runner that inherits ``TrainingRun`` calls ``init_training_run`` in its constructor and provides ``env`` (with
-``stats``, ``num_envs``, ``episode_length_buf``, ``max_episode_length``), ``steps_per_env``, ``gpu_world_size``,
-``is_distributed``, ``device``, ``save``/``load`` and ``current_learning_rate``.
+A runner that inherits ``TrainingRun`` calls ``init_training_run`` in its constructor and provides ``env`` (a
+``TaskEnv`` of learning/vecenv.py), ``steps_per_env``, ``save_interval``, ``gpu_world_size``, ``is_distributed``,
+``device``, ``save``/``load``, ``current_learning_rate`` and one iteration, ``_train_iteration`` (a rollout that calls
+``_step_done`` after each env step, then the update); ``learn`` runs the loop around it.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from collections import deque
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard, NoGoodState
-from isaacgymenvs_mw.learning.reporting import INCIDENT_COUNTS, duration, report_iteration, steady_iteration_s
+from isaacgymenvs_mw.learning.loggers import make_writer
+from isaacgymenvs_mw.learning.reporting import (INCIDENT_COUNTS, FirstCollectProgress, duration, report_iteration,
+                                                steady_iteration_s)
 from isaacgymenvs_mw.learning.vecenv import METRIC_GROUP
 from isaacgymenvs_mw.utils.files import DiskWriteError
 from isaacgymenvs_mw.utils.stop import PROCESS_STOP, StopRequested
+
+
+class Iteration(NamedTuple):
+    """What one iteration of a learner tells the loop: its seconds collecting and updating, its mean losses, and the
+    optimiser steps it skipped for a non-finite loss or gradient."""
+
+    collect_s: float
+    learn_s: float
+    losses: dict
+    skipped: int = 0
 
 
 class TrainingRun:
     """The learner-independent half of a runner (see the module's docstring)."""
 
     steps_per_env: int  # env steps per environment in one iteration's rollout
+    save_interval: int  # a periodic checkpoint every this many iterations (0: none)
 
     # What each learner's runner provides (learning/learners.py: its Learner makes it).
     def load_checkpoint(self, checkpoint: Path, task, state: dict | None = None) -> None:
@@ -52,7 +68,7 @@ class TrainingRun:
         self.time_budget_reached = False  # learn() ended at max_train_time_s, before its last iteration
         self.last_checkpoint: str | None = None
         self.best = None  # save_best: the BestCheckpoint (learning/best_checkpoint.py) model_best.pt follows
-        self.best_after = 0  # model_best.pt considers checkpoints from this iteration on (rl_games' save_best_after)
+        self.best_after = 0  # model_best.pt considers checkpoints from this iteration on (a learner's option)
         # Learner health: optimiser steps skipped for a non-finite loss or gradient, worlds whose observation or
         # reward held NaN/inf, and how often the last finite learner state was put back.
         self.skipped_steps = 0
@@ -60,6 +76,101 @@ class TrainingRun:
         self.guard = guard
         self._good_iteration: int | None = None  # the iteration whose learner state the guard holds
         self.noise_collapse: dict | None = None  # summary.json's record of the first collapsed action noise
+        self._steps_done = 0  # env steps of this learn() call, counted by _step_done
+        self._progress: FirstCollectProgress | None = None  # the first iteration's progress lines (main rank)
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False,
+              max_train_time_s: float | None = None) -> None:
+        """Train for ``num_learning_iterations``, or until ``max_train_time_s`` seconds of training (rollouts and
+        updates, as ``train_time_s`` counts them) are spent, or the learner's own goal is reached: the run then ends
+        after that iteration as it would after its last one (final checkpoint, summary). An exception or a stop
+        request ends it with ``model_<it>_interrupted.pt`` instead."""
+        writer = None
+        if self.log_dir and self.is_main:
+            writer = make_writer(self._logger_config(), self.log_dir, self.experiment, self.run_config)
+            self._attach_writer(writer)
+        env = self.env
+        if init_at_random_ep_len:
+            env.episode_length_buf = torch.randint_like(env.episode_length_buf, high=int(env.max_episode_length))
+        start_it = self.current_learning_iteration
+        last_it = start_it + num_learning_iterations
+        try:
+            self._begin_learning()
+            self._steps_done = 0
+            self._progress = (FirstCollectProgress(start_it + 1, self.steps_per_env, time.perf_counter())
+                              if self.is_main else None)
+            for it in range(start_it, last_it):
+                done = self._train_iteration(it, writer)
+                self.current_learning_iteration = it + 1
+                restored = self._keep_learner_finite(it + 1)
+                self._log_iteration(writer, it, last_it, done.collect_s, done.learn_s, done.losses, done.skipped,
+                                    restored)
+                keep_stop_handler()
+                self._stop_if_requested()
+                if max_train_time_s is not None and self._budget_spent(max_train_time_s):
+                    self.time_budget_reached = True
+                    break
+                if self._reached_goal():
+                    break
+                self._save_every(it + 1, self.save_interval)
+        except BaseException as err:
+            self._save_interrupted(start_it, err)
+            raise
+        else:  # saved while the writer is open, so that W&B uploads the final checkpoint too
+            self._save_last()
+        finally:
+            self._end_learning()
+            if writer is not None:
+                writer.close()
+                self._detach_writer(writer)
+
+    def _step_done(self) -> None:
+        """After each env step of a rollout: a stop request ends the run here, and the first iteration shows its
+        progress. The first step compiles (torch, Triton), which may replace the stop handler: it is checked after
+        it."""
+        self._steps_done += 1
+        if self._steps_done == 1:
+            keep_stop_handler()
+        self._stop_if_requested()
+        if self._progress is not None and self._steps_done <= self.steps_per_env:
+            self._progress.step_done(self._steps_done)
+
+    # The learner's side of the loop.
+    def _train_iteration(self, it: int, writer) -> Iteration:
+        """One iteration (0-based ``it``): a rollout of ``steps_per_env`` env steps, each followed by
+        ``_step_done()``, then the update. ``writer``: the run's TensorBoard writer, or None."""
+        raise NotImplementedError
+
+    def _begin_learning(self) -> None:
+        """Before the first iteration of ``learn`` (the learner's buffers, first observation, training mode)."""
+
+    def _end_learning(self) -> None:
+        """After ``learn``, however it ended."""
+
+    def _reached_goal(self) -> bool:
+        """Whether the learner's own end (a score, a frame count) is reached after an iteration."""
+        return False
+
+    def _logger_config(self) -> dict:
+        """The train YAML section that names the logger (``logger``: TensorBoard or W&B); empty: TensorBoard."""
+        return {}
+
+    def _attach_writer(self, writer) -> None:
+        """Give the learner the run's writer (its own scalars, checkpoint uploads)."""
+
+    def _detach_writer(self, writer) -> None:
+        """Take the writer back from the learner once it is closed."""
+
+    def release(self) -> None:
+        """Free what the learner holds on the device that would keep the process group from closing (a captured
+        update's NCCL work)."""
+
+    def leave_process_group(self) -> None:
+        """multi_gpu=True: the runner joined a NCCL group; leaving it lets each rank exit without NCCL's leak
+        warning. A captured update holds NCCL work that would make leaving hang, so it is freed first."""
+        self.release()
+        if torch.distributed.is_available() and torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
 
     def current_learning_rate(self) -> float:
         raise NotImplementedError

@@ -1,4 +1,5 @@
-"""VecTask -> rsl_rl VecEnv, with per-episode statistics kept on the device (read once per iteration)."""
+"""VecTask -> a learner's env: the set-up and step record every adapter shares (``TaskEnv``: task facts, per-episode
+statistics kept on the device and read once per iteration, NaN counts) and rsl_rl's VecEnv (``RslRlVecEnv``)."""
 
 from __future__ import annotations
 
@@ -118,11 +119,11 @@ def record_step(stats: EpisodeStats, task: VecTask, rew: torch.Tensor, reset: to
         stats.set_running(running, group=METRIC_GROUP.rstrip("/"))
 
 
-class RslRlVecEnv(VecEnv):
-    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs), 'critic' (states; obs if numStates is 0) and,
-    for a task with image terms, 'camera' ((num_envs, C, H, W) uint8; ``learning/models.py`` scales it).
-    ``reward_scale``: the recipe's factor on the task's reward (``train.runner.reward_scale``), applied before the
-    learner and the episode statistics see it."""
+class TaskEnv:
+    """What every learner's env adapter shares: the task's facts (envs, actions, episode length, device), the
+    episode statistics with the task's count of non-finite inputs, the recipe's reward scale, and a task step that
+    records its outcome. ``reward_scale``: the recipe's factor on the task's reward; the statistics report the
+    scaled reward, the one the learner learns from."""
 
     def __init__(self, task: VecTask, reward_scale: float = 1.0) -> None:
         self.task = task
@@ -131,10 +132,8 @@ class RslRlVecEnv(VecEnv):
         self.num_actions = task.num_actions
         self.max_episode_length = task.max_episode_length
         self.device = task.rl_device
-        self.cfg = task.cfg
         self.stats = EpisodeStats(task.num_envs, task.rl_device)
         self.stats.count("nonfinite_inputs", task.nonfinite_inputs_count)
-        self._obs = self._to_tensordict(task.reset())
 
     @property
     def episode_length_buf(self) -> torch.Tensor:
@@ -143,6 +142,26 @@ class RslRlVecEnv(VecEnv):
     @episode_length_buf.setter
     def episode_length_buf(self, value: torch.Tensor) -> None:
         self.task.progress_buf.copy_(value)
+
+    def step_task(self, actions: torch.Tensor) -> tuple[dict, torch.Tensor, torch.Tensor, torch.Tensor, dict]:
+        """One task step, recorded in the statistics: the obs dict, the task's reward, the reward scaled by
+        ``reward_scale``, the resets and the extras."""
+        obs_dict, rew, reset, extras = self.task.step(actions)
+        scaled = rew * self.reward_scale if self.reward_scale != 1.0 else rew
+        record_step(self.stats, self.task, scaled, reset, extras)
+        return obs_dict, rew, scaled, reset, extras
+
+
+class RslRlVecEnv(TaskEnv, VecEnv):
+    """Presents a VecTask to rsl_rl: TensorDict groups 'policy' (obs), 'critic' (states; obs if numStates is 0) and,
+    for a task with image terms, 'camera' ((num_envs, C, H, W) uint8; ``learning/models.py`` scales it).
+    ``reward_scale``: the recipe's factor on the task's reward (``train.runner.reward_scale``), applied before the
+    learner and the episode statistics see it."""
+
+    def __init__(self, task: VecTask, reward_scale: float = 1.0) -> None:
+        super().__init__(task, reward_scale)
+        self.cfg = task.cfg
+        self._obs = self._to_tensordict(task.reset())
 
     def _to_tensordict(self, obs_dict: dict[str, torch.Tensor]) -> TensorDict:
         # "critic" always exists, so one train YAML serves with and without privileged states (numStates 0).
@@ -155,11 +174,8 @@ class RslRlVecEnv(VecEnv):
         return self._obs
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        obs_dict, rew, reset, extras = self.task.step(actions)
-        if self.reward_scale != 1.0:
-            rew = rew * self.reward_scale
+        obs_dict, _, rew, reset, extras = self.step_task(actions)
         self._obs = self._to_tensordict(obs_dict)
-        record_step(self.stats, self.task, rew, reset, extras)
         return self._obs, rew, reset, extras
 
     def close(self) -> None:
