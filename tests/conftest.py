@@ -121,3 +121,12 @@ def train_py_two_iterations_then_test(task: str, tmp_path: Path, num_envs: int, 
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     (evaluation,) = runs.rglob("eval.json")
     return summary, json.loads(evaluation.read_text())
+
+
+def tensorboard_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every scalar a run wrote to TensorBoard: {tag: [(step, value), ...]}."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    events.Reload()
+    return {tag: [(e.step, e.value) for e in events.Scalars(tag)] for tag in events.Tags()["scalars"]}

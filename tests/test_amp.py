@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from conftest import tensorboard_scalars
 
 from isaacgymenvs_mw.learning.amp import (
     AMPConfig,
@@ -131,3 +132,18 @@ def test_two_training_iterations_with_amp(tmp_path):
     runner.learn(2)
     assert env.replay.count == 2 * 4 * 2
     assert not all(torch.equal(a, b) for a, b in zip(before, env.disc.parameters()))
+
+
+def test_train_py_switches_amp_on_from_the_train_yaml(tmp_path, run_args):
+    """launch.run (train.py's path) wraps the env when the train YAML has an amp section: the discriminator's loss and
+    the style reward reach TensorBoard once per iteration, the style reward within [0, disc_reward_scale]."""
+    from isaacgymenvs_mw.learning.launch import run
+    from isaacgymenvs_mw.utils.config import compose_config
+
+    small = ["train.runner.num_steps_per_env=4", "train.amp.hidden_dims=[32]", "train.amp.minibatch_size=16",
+             "train.amp.updates_per_rollout=2", "train.actor.hidden_dims=[32]", "train.critic.hidden_dims=[32]"]
+    assert run(compose_config(["task=HumanoidAMP", "num_envs=2", "max_iterations=2", *small, *run_args]))
+    (run_dir,) = (tmp_path / "runs" / "HumanoidAMP").iterdir()
+    scalars = tensorboard_scalars(run_dir)
+    assert [step for step, _ in scalars["AMP/disc_loss"]] == [0, 1]
+    assert all(0.0 <= value <= 2.0 for _, value in scalars["AMP/style_reward"])

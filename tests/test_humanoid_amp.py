@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import mujoco
 import pytest
 import torch
 
@@ -9,6 +12,8 @@ import isaacgymenvs_mw
 from isaacgymenvs_mw.tasks.amp.observations import humanoid_observation
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
+
+ASSET = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "amp_humanoid.xml"
 
 N = 3
 
@@ -80,6 +85,24 @@ def test_fall_ends_the_episode(task):
         _, _, reset, extras = task.step(torch.zeros(N, 28))
         ended |= reset.bool() & ~extras["time_outs"].bool()
     assert ended.all()
+
+
+def test_a_default_start_touches_nothing_and_standing_on_it_does_not_end_the_episode():
+    """The Default start pose, checked in MuJoCo C: no contact in the model (no body in another); held by its PD
+    targets, the humanoid standing there is not ended by the fall rule in its first 10 steps."""
+    env = isaacgymenvs_mw.make(task="HumanoidAMP", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True,
+                               overrides=["task.env.stateInit=Default"])
+    model = mujoco.MjModel.from_xml_path(str(ASSET))
+    data = mujoco.MjData(model)
+    data.qpos[:7] = [0.0, 0.0, 0.89, 1.0, 0.0, 0.0, 0.0]
+    data.qpos[7:] = env.default_dof_pos.cpu().numpy()
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 0
+    env.reset()
+    hold = ((env.default_dof_pos - env.pd_offset) / env.pd_scale).expand(2, -1)
+    for _ in range(10):
+        _, _, reset, _ = env.step(hold)
+        assert not reset.any()
 
 
 def test_bad_state_init_names_the_key():

@@ -23,9 +23,8 @@ import mujoco_warp
 import pytest
 import torch
 from omegaconf import OmegaConf
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from conftest import CPU_ARGS, REPO_ROOT
+from conftest import CPU_ARGS, REPO_ROOT, tensorboard_scalars
 from isaacgymenvs_mw.learning import loggers
 from isaacgymenvs_mw.tasks.build import build_task
 from isaacgymenvs_mw.learning.launch import run
@@ -113,12 +112,6 @@ def test_deterministic_reaches_mujoco_warp():
     off = build_task(compose_config(["task=Cartpole", "num_envs=2", *CPU_ARGS]))
     assert on.sim.model.opt.deterministic == int(mujoco_warp.DeterminismType.ALL)
     assert off.sim.model.opt.deterministic == int(mujoco_warp.DeterminismType.NONE)
-
-
-def tensorboard_scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
-    events = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
-    events.Reload()
-    return {tag: [(e.step, e.value) for e in events.Scalars(tag)] for tag in events.Tags()["scalars"]}
 
 
 def test_wandb_logs_the_tensorboard_metrics_offline(runs):

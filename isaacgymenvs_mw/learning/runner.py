@@ -19,6 +19,7 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 
+from isaacgymenvs_mw.learning.amp import with_amp
 from isaacgymenvs_mw.learning.guard import LearnerGuard, learner_tensors
 from isaacgymenvs_mw.learning.learners import Learner
 from isaacgymenvs_mw.learning.loggers import check_logger
@@ -284,6 +285,7 @@ class RslRlLearner(Learner):
 
     def runner_factory(self, task) -> tuple[Callable[[], Runner], str]:
         env = RslRlVecEnv(task, recipe_reward_scale(to_dict(self.cfg.train)))
+        env = with_amp(env, to_dict(self.cfg.train))  # a train YAML's amp section: the style reward (learning/amp.py)
         experiment = str(self.train_cfg.pop("experiment_name", None) or self.cfg.experiment or self.cfg.task_name)
         verbose = bool(self.cfg.get("verbose", False))
         return lambda: Runner(env, self.train_cfg, log_dir=None, device=task.rl_device, verbose=verbose), experiment

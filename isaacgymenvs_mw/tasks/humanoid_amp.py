@@ -16,7 +16,9 @@ them is below ``terminationHeight`` (after the episode's first 2 steps).
 
 Where this differs from IsaacGymEnvs: joint coordinates are MuJoCo hinge angles (tasks/amp/motion_library.py);
 a contact is a force component of magnitude over 0.1 N (IsaacGymEnvs compares the signed PhysX components with
-+0.1); the default pose's shoulders are IsaacGymEnvs' +-pi/2 about x clamped into the MJCF's ranges.
++0.1); the Default start pose is the MJCF's zero pose, arms hanging (IsaacGymEnvs' sets the shoulders' x hinges to
++-pi/2, outside the MJCF's ranges; clamped into them, at +-pi/4, the arms cross into the chest and each other, 1-5 cm
+deep, and the contact ends the episode at once).
 """
 
 from __future__ import annotations
@@ -41,7 +43,6 @@ from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate_inverse
 
 MOTIONS_DIR = ASSETS_DIR / "amp" / "motions"
-DEFAULT_SHOULDERS = {"right_shoulder_x": 0.5 * math.pi, "left_shoulder_x": -0.5 * math.pi}  # IGE's default pose
 
 
 class StateInit(Enum):
@@ -113,11 +114,7 @@ class HumanoidAMP(VecTask):
                 lo[i], hi[i] = mid - half, mid + half
             i += size
         self.pd_offset, self.pd_scale = 0.5 * (hi + lo), 0.5 * (hi - lo)
-        default = torch.zeros_like(lower)
-        for name, angle in DEFAULT_SHOULDERS.items():
-            if name in sim.dof_names:
-                default[sim.dof_names.index(name)] = angle
-        self.default_dof_pos = torch.clamp(default, lower, upper)
+        self.default_dof_pos = torch.zeros_like(lower)  # the zero pose (module docstring: why not IGE's)
 
     def _init_bodies(self, env: dict) -> None:
         names = self._sensed_bodies
