@@ -1,4 +1,4 @@
-"""Tasks that do what IsaacGymEnvs ports do (used by tests/test_porting_traps.py, also through ``task_module=``)."""
+"""Tasks that do what IsaacGymEnvs ports do (used by tests/tasks/test_porting_traps.py, also through ``task_module=``)."""
 
 from __future__ import annotations
 

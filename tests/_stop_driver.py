@@ -1,4 +1,4 @@
-"""Runs train.py in this process with a hook after the first training iteration (used by tests/test_stop.py).
+"""Runs train.py in this process with a hook after the first training iteration (used by tests/workflow/test_stop.py).
 
 Usage: python tests/_stop_driver.py PATH [train.py overrides...]; PATH is "ahead", "first_call" or "eager" (how the
 post-physics step gets compiled). After the first iteration it prints whether SIGTERM's handler, as Python and as

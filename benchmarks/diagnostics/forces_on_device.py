@@ -2,7 +2,7 @@
 
     python benchmarks/diagnostics/forces_on_device.py [--device cuda:0]
 
-The CPU path is checked against MuJoCo C by tests/test_body_forces.py; this runs the same sequence of env steps
+The CPU path is checked against MuJoCo C by tests/sim/test_body_forces.py; this runs the same sequence of env steps
 on both devices and prints the largest qpos difference after each, as JSON. It covers what the CPU cannot: the
 graph variants (physics, +forces, +pose), the first call of each graph (an eager run that is undone, then the
 capture), one-step forces dropped by the captured step, and persistent forces until cleared.
@@ -20,7 +20,7 @@ import torch
 
 from isaacgymenvs_mw.sim import Simulator
 
-# The model tests/test_body_forces.py checks against MuJoCo C.
+# The model tests/sim/test_body_forces.py checks against MuJoCo C.
 XML = (Path(__file__).resolve().parents[2] / "tests" / "assets" / "free_box_and_hinge.xml").read_text()
 N, SUBSTEPS = 64, 3
 

@@ -6,7 +6,7 @@ summed with ``.item()``. Each read stalls the Python thread until the GPU has dr
 mini-batch's kernels are launched into an idle GPU; with several GPUs, every stall also lines the ranks up with each
 other. Here the learning rate lives in a device tensor that Adam reads directly, the KL divergence travels in the
 same all-reduce as the gradients, and losses are summed on the device and read once per update. The rule and the
-arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/test_ppo.py checks this against rsl-rl-lib).
+arithmetic are rsl-rl-lib's, so a run gives the same numbers (tests/learning/test_ppo.py checks this against rsl-rl-lib).
 
 Without host reads the update is still thousands of small kernel launches from Python (the policy networks are
 small, so launching costs more than computing). The whole update, all-reduces included, is therefore recorded once

@@ -29,7 +29,7 @@ The estimate does not hold once constraints couple the joints: it sees one joint
 constraint that ties them. On a closed chain (a leg whose foot an equality constraint pins) the rule "implicit
 damping raises the limit" fails in MuJoCo C: IsaacGymEnvs' BallBalance gains (kp 4000, damping 100 at dt 0.01) give
 ratio 0.44 under implicitfast (kv) and under euler (joint damping), and the foot still leaves its pin within a
-second, while the same leg with its foot free stays stable (tests/test_drive_stability.py). Hence the
+second, while the same leg with its foot free stays stable (tests/sim/test_drive_stability.py). Hence the
 build-time probe (``probe_divergence``): MuJoCo C steps one world of the compiled model from its initial state and
 from a few perturbed ones, the drives holding the initial pose, and looks for what the run-time check resets (a
 NaN/inf state, a joint speed above ``DIVERGED_SPEED``, an equality constraint violated by more than

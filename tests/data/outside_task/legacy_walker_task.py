@@ -1,7 +1,7 @@
 """A task written outside the repository against the public task API of 2026-11-27 (before VecTask had
 ``env_steps``), kept unchanged as a compatibility fixture: it keeps its own device counter of env steps under the
 name ``env_steps`` (as a Trifinger port did), rebinds ``obs_buf`` as IsaacGymEnvs' tasks do, and writes its own
-``post_physics_step``. tests/test_public_names.py builds, trains and evaluates it only through the documented
+``post_physics_step``. tests/workflow/test_public_names.py builds, trains and evaluates it only through the documented
 outside-task path (``task_module=`` and ``--config-dir``)."""
 
 import torch

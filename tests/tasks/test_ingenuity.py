@@ -24,7 +24,7 @@ from isaacgymenvs_mw.tasks.ingenuity import (
     ingenuity_forces,
 )
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 XML = REPO / "assets" / "mjcf" / "ingenuity.xml"
 TASK_YAML = REPO / "cfg" / "task" / "Ingenuity.yaml"
 # IGE's figures

@@ -16,7 +16,7 @@ import isaacgymenvs_mw
 from isaacgymenvs_mw.sim.video import VideoRecorder
 from isaacgymenvs_mw.utils.config import compose_config
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 W, H = 192, 144  # small, even (H.264 in yuv420p needs even sizes); the 8 m Cartpole rail is framed whole
 
 

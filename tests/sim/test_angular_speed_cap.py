@@ -15,7 +15,7 @@ from isaacgymenvs_mw.sim import Simulator, free_joint_speed_limits
 from isaacgymenvs_mw.sim.request import max_angular_velocity
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-XML = (Path(__file__).resolve().parent / "assets" / "free_box_and_hinge.xml").read_text()
+XML = (Path(__file__).resolve().parents[1] / "assets" / "free_box_and_hinge.xml").read_text()
 SUBSTEPS, LIMIT = 3, 5.0
 QVEL0 = np.array([[0.1, -0.2, 0.3, 1.0, -2.0, 6.0, 3.0], [0.0, 0.4, 0.0, -3.0, 0.5, 2.0, -4.0]])
 

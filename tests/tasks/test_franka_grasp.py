@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 
 from isaacgymenvs_mw.sim import Simulator, build_model, request_from_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TASK_YAML = REPO / "cfg" / "task" / "FrankaCubeStack.yaml"
 
 CUBE = np.array([0.45, 0.0, -0.075])  # cube A's centre resting on the table (top at z = -0.1), yaw 0

@@ -29,7 +29,7 @@ from isaacgymenvs_mw.tasks import isaacgym_task_map
 from isaacgymenvs_mw.tasks.base.python_state import PythonStateWarning
 from isaacgymenvs_mw.utils.config import compose_config
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 NUM_ENVS = 2
 STEPS = 3  # of zero actions, then as many of random actions
 # A terrain task builds its whole map at construction: the smallest one that still has several levels and types

@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "isaacgymenvs_mw"
+PACKAGE = Path(__file__).resolve().parents[2] / "isaacgymenvs_mw"
 SIMULATOR_MODULES = {"mujoco", "mujoco_warp"}
 
 

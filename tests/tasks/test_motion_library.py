@@ -11,7 +11,7 @@ import torch
 
 from isaacgymenvs_mw.tasks.amp.motion_library import JointGroup, MotionLibrary
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 MJCF = ROOT / "assets" / "mjcf" / "amp_humanoid.xml"
 RUN = ROOT / "assets" / "amp" / "motions" / "amp_humanoid_run.npy"
 KEYS = ["right_hand", "left_hand", "right_foot", "left_foot"]

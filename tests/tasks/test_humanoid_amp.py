@@ -13,7 +13,7 @@ from isaacgymenvs_mw.tasks.amp.observations import humanoid_observation
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import quat_rotate
 
-ASSET = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "amp_humanoid.xml"
+ASSET = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "amp_humanoid.xml"
 
 N = 3
 

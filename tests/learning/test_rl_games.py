@@ -35,7 +35,7 @@ def test_cartpole_learns_with_rl_games_and_test_mode_evaluates_its_checkpoint(tm
     assert summary["mean_episode_length"] > 100 and summary["mean_episode_reward"] > 3 * first, (first, summary)
     run_dir = _run_dir(runs, "Cartpole")
     on_disk = json.loads((run_dir / "summary.json").read_text())
-    # The same summary keys as an rsl_rl run's (tests/test_training.py reads them too).
+    # The same summary keys as an rsl_rl run's (tests/learning/test_training.py reads them too).
     rsl = run(compose_config(["task=Cartpole", "num_envs=8", "max_iterations=1", "experiment=rsl", *run_args]))
     assert set(on_disk) == set(rsl)
     assert on_disk["iterations"] == 30 and on_disk["env_steps"] == 30 * 16 * 64

@@ -22,7 +22,7 @@ from isaacgymenvs_mw import make
 from isaacgymenvs_mw.tasks.allegro_kuka import lifting_terms, random_quaternion
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 XML = REPO / "assets" / "mjcf" / "allegro_kuka.xml"
 PI = 3.14159265359
 HALF_PI = 1.57079632679

@@ -22,7 +22,7 @@ from isaacgymenvs_mw import make
 from isaacgymenvs_mw.tasks.trifinger import keypoints_kernel, sample_goals
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 XML = REPO / "assets" / "mjcf" / "trifinger.xml"
 TASK_YAML = REPO / "cfg" / "task" / "Trifinger.yaml"
 # URDF facts: the holder height, joint origins (parent frame), tip offset, ranges, masses

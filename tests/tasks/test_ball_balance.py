@@ -20,7 +20,7 @@ from isaacgymenvs_mw import make
 from isaacgymenvs_mw.tasks.ball_balance import ball_dropped, compute_ball_balance_reward
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-ASSETS = Path(__file__).resolve().parents[1] / "assets" / "mjcf"
+ASSETS = Path(__file__).resolve().parents[2] / "assets" / "mjcf"
 # IGE's figures
 TRAY_R, TRAY_T, TRAY_RHO = 0.5, 0.02, 100.0
 LEG_R, LEG_RHO = 0.02, 1000.0

@@ -3,7 +3,7 @@ that ``VecTask.model_request`` asked for before the move, on every shipped task 
 drive check; name matching rules.
 
 Reference: tests/assets/model_requests.json, written from VecTask.model_request of commit 3b2a975 (before the move;
-``python tests/test_model_request.py --record`` rewrites it from whatever VecTask.model_request is now, so only run
+``python tests/sim/test_model_request.py --record`` rewrites it from whatever VecTask.model_request is now, so only run
 it while VecTask still has its own copy), and the live VecTask.model_request while it exists.
 """
 
@@ -258,7 +258,7 @@ def _record() -> None:
 
 
 if __name__ == "__main__" and "--record" in sys.argv:
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     _record()
 
 

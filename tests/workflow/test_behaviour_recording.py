@@ -9,7 +9,7 @@ again when ``reset()`` began to run the task's ``after_reset``, issue 70: their 
 there too, which shifts every later draw; nothing else changed, as the test then passing against the old recording up
 to that commit shows):
 
-    python tests/test_behaviour_recording.py --record [Task ...]
+    python tests/workflow/test_behaviour_recording.py --record [Task ...]
 
 Comparison: bitwise for flags, and within 1e-6 (absolute, plus the same relative) for values, since a refactor may
 legitimately change the order of floating-point operations (a sum of named terms in a loop, say).
@@ -26,10 +26,10 @@ import torch
 
 from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 if str(REPO_ROOT) not in sys.path:  # `examples` (the tutorial's Pendulum) is importable from the repository root
     sys.path.insert(0, str(REPO_ROOT))
-DATA = Path(__file__).resolve().parent / "data" / "behaviour"
+DATA = Path(__file__).resolve().parents[1] / "data" / "behaviour"
 TASKS = ["Cartpole", "Anymal", "AnymalTerrain", "Go1", "Go1Terrain", "G1", "G1Terrain", "Ant", "Humanoid", "Pendulum",
          # recorded later (issue 45), from commit 44ba848, before the refactor of observations and the episode clock
          "CartpoleCamera", "CartpoleCameraDepth", "FrankaCabinet", "FrankaCubeStack", "FrankaCubeLift",

@@ -15,7 +15,7 @@ import pytest
 
 from hand_kinematics import all_colliding, assert_primitive_hand_without_self_contacts, hand_and_cube, pose, posed
 
-SHADOW = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "shadow_hand.xml"
+SHADOW = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "shadow_hand.xml"
 FINGERS = ("ff", "mf", "rf", "lf")
 JOINTS = (["WRJ2", "WRJ1"] + [f"{f.upper()}J{i}" for f in ("ff", "mf", "rf") for i in (4, 3, 2, 1)]
           + [f"LFJ{i}" for i in (5, 4, 3, 2, 1)] + [f"THJ{i}" for i in (5, 4, 3, 2, 1)])

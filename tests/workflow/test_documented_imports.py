@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = ("README.md", "docs/contributing.md", "docs/porting.md", "docs/config.md")
 FROM_IMPORT = re.compile(r"from (isaacgymenvs_mw[\w.]*) import ([\w, ]+)")
 REFERENCE = re.compile(r"\b(isaacgymenvs_mw(?:\.\w+)+)(?::(\w+))?")

@@ -1,6 +1,6 @@
 """``VecTask.env_steps`` (issue 59): the run's env steps over all envs as a device tensor a task reads in the step
 (IsaacGymEnvs' frame count), starting where ``set_train_info`` (a checkpoint, resumed or in test mode) puts it. The
-resume through a checkpoint is checked end to end in tests/test_workflow.py."""
+resume through a checkpoint is checked end to end in tests/workflow/test_workflow.py."""
 
 from __future__ import annotations
 

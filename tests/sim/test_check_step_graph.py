@@ -11,7 +11,7 @@ import torch
 
 import isaacgymenvs_mw
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "diagnostics"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks" / "diagnostics"))
 import check_step_graph  # noqa: E402  (a script beside the tests, not a package)
 
 

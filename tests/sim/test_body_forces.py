@@ -18,7 +18,7 @@ import torch
 from isaacgymenvs_mw.sim import Simulator
 from isaacgymenvs_mw.tasks.base.vec_task import VecTask
 
-XML = (Path(__file__).resolve().parent / "assets" / "free_box_and_hinge.xml").read_text()
+XML = (Path(__file__).resolve().parents[1] / "assets" / "free_box_and_hinge.xml").read_text()
 N, SUBSTEPS = 2, 3
 BOX, ARM = 1, 2
 QVEL0 = np.array([[0.1, -0.2, 0.3, 1.0, -2.0, 6.0, 3.0], [0.0, 0.4, 0.0, -3.0, 0.5, 2.0, -4.0]])

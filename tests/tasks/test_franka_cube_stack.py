@@ -2,7 +2,7 @@
 against a numpy transcription of its formula written here, its stack success on placed cubes (stacked and released,
 stacked but held, 3 cm off), resets (cubes on the table, far enough apart, within the noise), the two control types
 (targets and torques), the gripper, the observation against MuJoCo C, env.contact in the model, one-line errors, and one training iteration
-plus test mode on the CPU. The staged reward, the default: tests/test_franka_cube_stack_staged.py."""
+plus test mode on the CPU. The staged reward, the default: tests/tasks/test_franka_cube_stack_staged.py."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ from hand_kinematics import (
     posed,
 )
 
-ALLEGRO = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "allegro_hand.xml"
+ALLEGRO = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "allegro_hand.xml"
 FINGERS = ("index", "middle", "ring", "thumb")
 JOINTS = [f"{f}_joint_{i}" for f in FINGERS for i in range(4)]
 

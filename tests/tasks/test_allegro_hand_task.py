@@ -24,7 +24,7 @@ from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 from isaacgymenvs_mw.utils.rotations import rotation_distance
 
-ALLEGRO = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "allegro_hand.xml"
+ALLEGRO = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "allegro_hand.xml"
 CPU = dict(sim_device="cpu", rl_device="cpu", headless=True)
 IDENTITY = [1.0, 0.0, 0.0, 0.0]
 

@@ -20,7 +20,7 @@ from isaacgymenvs_mw.tasks.base.metrics import EPISODE_SUM, OUTCOME, PER_STEP
 from isaacgymenvs_mw.tasks.quadcopter import compute_quadcopter_reward, quadcopter_failed
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-XML = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "quadcopter.xml"
+XML = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "quadcopter.xml"
 # IGE's figures
 CHASSIS_R, CHASSIS_T, CHASSIS_RHO = 0.1, 0.03, 50.0
 ROTOR_R, ROTOR_T, ROTOR_RHO = 0.04, 0.01, 1000.0

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-PANDA = Path(__file__).resolve().parents[1] / "assets" / "mjcf" / "franka_panda.xml"
+PANDA = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "franka_panda.xml"
 
 # Modified (Craig) DH: a_{i-1}, d_i, alpha_{i-1}; theta_i = q_i. Gaz et al., RA-L 2019 (Load_Franka_DH.m).
 DH = [
