@@ -82,6 +82,9 @@ def _check_class_name(key: str, name: object) -> None:
                       "module.path:ClassName")
 
 
+# A checkpoint's entry for what an env wrapper learns alongside the policy (AMP's discriminator, learning/amp.py).
+ENV_STATE_KEY = "env_state_dict"
+
 class Runner(TrainingRun, OnPolicyRunner):
     """OnPolicyRunner with a sync-free rollout inside this project's training loop (``TrainingRun.learn``, which
     replaces OnPolicyRunner's)."""
@@ -165,6 +168,9 @@ class Runner(TrainingRun, OnPolicyRunner):
         run's env steps, from which a resumed run's count goes on; the upload (W&B) then sends the finished file."""
         state = {**self.alg.save(), "iter": self.current_learning_iteration,
                  "infos": {**(infos or {}), "env_steps": self.total_env_steps}}
+        learned_by_env = getattr(self.env, "state_dict", None)  # an env wrapper that learns too (AMP's discriminator)
+        if learned_by_env is not None:
+            state[ENV_STATE_KEY] = learned_by_env()
         atomic_save(path, lambda partial: torch.save(state, partial))
         self.logger.save_model(path, self.current_learning_iteration)
 
@@ -187,6 +193,8 @@ class Runner(TrainingRun, OnPolicyRunner):
                 )
         check_network_sizes(self, state, checkpoint)
         infos = self.load(str(checkpoint), map_location=task.rl_device)
+        if ENV_STATE_KEY in state and hasattr(self.env, "load_state_dict"):
+            self.env.load_state_dict(state[ENV_STATE_KEY])
         steps_per_iteration = self.steps_per_env * task.num_envs
         # The run's env-step count goes on from the checkpoint's (saved since it was recorded; estimated before).
         estimate = self.current_learning_iteration * steps_per_iteration

@@ -147,3 +147,40 @@ def test_train_py_switches_amp_on_from_the_train_yaml(tmp_path, run_args):
     scalars = tensorboard_scalars(run_dir)
     assert [step for step, _ in scalars["AMP/disc_loss"]] == [0, 1]
     assert all(0.0 <= value <= 2.0 for _, value in scalars["AMP/style_reward"])
+    # test mode from the run's checkpoint (the discriminator in it is loaded and left alone)
+    result = run(compose_config(["task=HumanoidAMP", "num_envs=2", "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
+                                 "task.env.episodeLength_s=0.5", *small, *run_args]))
+    assert result["episodes"] == 2
+
+
+def test_a_checkpoint_keeps_the_discriminator_and_a_resumed_run_gets_it_back(tmp_path):
+    """The runner's checkpoint holds the AMP wrapper's discriminator, optimiser and input statistics; a new run that
+    loads the checkpoint starts from the same discriminator, not a new one."""
+    import isaacgymenvs_mw
+    from isaacgymenvs_mw.learning.runner import Runner, rsl_rl_config
+    from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
+    from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+    train = to_dict(compose_config(["task=HumanoidAMP"]).train)
+    train["runner"].update(num_steps_per_env=4, max_iterations=1)
+    for part in ("actor", "critic"):
+        train[part]["hidden_dims"] = [32]
+    train["amp"].update(hidden_dims=[32], minibatch_size=16, updates_per_rollout=2, replay_buffer_size=256)
+    cfg = rsl_rl_config(train)
+    cfg.pop("max_iterations")
+
+    def runner_on_new_task():
+        task = isaacgymenvs_mw.make(task="HumanoidAMP", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True)
+        env = with_amp(RslRlVecEnv(task), train)
+        return task, env, Runner(env, cfg, log_dir=None, device="cpu")
+
+    _, trained_env, trained = runner_on_new_task()
+    trained.learn(1)
+    trained.save(str(tmp_path / "model_1.pt"))
+    task, fresh_env, fresh = runner_on_new_task()
+    assert not all(torch.equal(a, b) for a, b in zip(trained_env.disc.parameters(), fresh_env.disc.parameters()))
+    fresh.load_checkpoint(tmp_path / "model_1.pt", task)
+    for a, b in zip(trained_env.disc.parameters(), fresh_env.disc.parameters()):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    torch.testing.assert_close(fresh_env.norm.mean, trained_env.norm.mean, rtol=0, atol=0)
+    assert fresh_env.optimizer.state_dict()["state"].keys() == trained_env.optimizer.state_dict()["state"].keys()
