@@ -14,9 +14,7 @@ import pytest
 import torch
 from test_franka_cube_stack_staged import (
     STAGE_NAMES,
-    grasp_rotation_error,
-    reference_staged,
-    reward_inputs,
+    scripted_stack,
 )
 
 from isaacgymenvs_mw import make
@@ -131,47 +129,10 @@ def test_a_bad_grasped_reset_fraction_is_one_line(value):
 
 
 def test_from_a_grasped_start_a_scripted_carry_and_release_stacks_paying_every_later_stage_in_order():
-    """osc script as test_franka_cube_stack_staged's pick-and-place, from A in the hand: carry it over B, set it down,
-    let go. Every step's reward equals the reference formula; the stages from grasp on are first reached in order."""
+    """test_franka_cube_stack_staged's script from A in the hand: carry it over B, set it down, let go. Every step's
+    reward equals the reference formula; the stages from grasp on are first reached in order."""
     env = grasped_env(1, "osc", "task.env.startRotationNoise=0.0")
-    a, b, grasp = env.cube_a.root_pos[0], env.cube_b.root_pos[0], env.arm.grasp_pos()[0]
-    place_on_b = lambda: b + torch.tensor([0.0, 0.0, 0.06])  # A's centre resting on B
-
-    def steer(point: torch.Tensor, waypoint: torch.Tensor, grip: float) -> torch.Tensor:
-        action = torch.zeros(1, 7)
-        action[0, :3] = torch.clamp(20.0 * (waypoint - point), -1.0, 1.0)
-        action[0, 3:6] = torch.clamp(4.0 * grasp_rotation_error(env.arm.grasp_axes()[0]), -1.0, 1.0)
-        action[0, 6] = grip
-        return action
-
-    phases = [(lambda: a, lambda: place_on_b() + torch.tensor([0.0, 0.0, 0.05]), -1.0,
-               lambda: torch.linalg.norm((a - place_on_b())[:2]) < 0.006 and a[2] > place_on_b()[2] + 0.03, 150),
-              (lambda: a, lambda: place_on_b() + torch.tensor([0.0, 0.0, -0.01]), -1.0,
-               lambda: abs(float(a[2] - place_on_b()[2])) < 0.005, 80),
-              (lambda: grasp, lambda: grasp.clone(), 1.0, lambda: False, 60)]
-    read = {}
-    task_refresh = env.refresh_state
-
-    def refresh_state() -> None:
-        read["state"] = [column[0] for column in reward_inputs(env)]
-        task_refresh()
-
-    env.refresh_state = refresh_state
-    first_reached, done, stage, rew = [], False, None, None
-    for point, waypoint, grip, finished, most in phases:
-        for _ in range(most):
-            _, rew, reset, _ = env.step(steer(point(), waypoint(), grip))
-            expected, stage = reference_staged(*read["state"])
-            assert rew[0].item() == pytest.approx(expected, abs=1e-6), stage
-            if stage not in first_reached:
-                first_reached.append(stage)
-            if reset[0]:
-                done = True
-                break
-            if finished():
-                break
-        if done:
-            break
-    assert done and stage == "stacked" and rew[0].item() == 1.0
+    done, stage, reward, first_reached = scripted_stack(env, pick=False)
+    assert done and stage == "stacked" and reward == 1.0
     assert first_reached == STAGE_NAMES[1:]  # held from the first step: reach is never the furthest stage
     assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0]

@@ -229,17 +229,13 @@ def grasp_rotation_error(axes: torch.Tensor) -> torch.Tensor:
     return 0.5 * torch.linalg.cross(axes.T, goal.T).sum(dim=0)
 
 
-def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
-    """The staged reward can be earned to the end: an osc script (the grasp point or cube A steered to a waypoint, the
-    hand held top-down) picks A, carries it over B, sets it down and lets go. Every step's reward equals the reference
-    formula on the simulator's state as the task read it, the stages are first reached in their order, and the episode
-    ends a success. (As the task read it: the poses, body and site, are those of the last physics step's start, as
-    MuJoCo leaves them; the step's reset refreshes them before the observation, and by then the grasp point has moved
-    on by up to 7 mm in this script's fastest moves.)"""
-    env = make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
-               overrides=["task.env.controlType=osc", "task.env.frankaDofNoise=0.0",
-                          "task.env.startRotationNoise=0.0", "task.env.graspedResetFraction=0"])  # A on the table
-    env.reset()
+def scripted_stack(env, pick: bool) -> tuple[bool, str, float, list[str]]:
+    """An osc script (the grasp point or cube A steered to a waypoint, the hand held top-down) that, with ``pick``,
+    picks A from the table first, then carries it over B, sets it down and lets go. Every step's reward must equal the
+    reference formula on the simulator's state as the task read it. Returns whether the episode ended, the last step's
+    stage and reward, and the stages in the order first reached. (As the task read it: the poses, body and site, are
+    those of the last physics step's start, as MuJoCo leaves them; the step's reset refreshes them before the
+    observation, and by then the grasp point has moved on by up to 7 mm in this script's fastest moves.)"""
     a, b = env.cube_a.root_pos[0], env.cube_b.root_pos[0]  # live views of the simulator's state
     grasp = env.arm.grasp_pos()[0]
     place_on_b = lambda: b + torch.tensor([0.0, 0.0, 0.06])  # A's centre resting on B
@@ -252,15 +248,15 @@ def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
         return action
 
     # (what is steered, its waypoint, gripper, done when, at most steps); waypoints are read each step
-    phases = [(lambda: grasp, lambda: a + torch.tensor([0.0, 0.0, 0.08]), 1.0,
-               lambda: torch.linalg.norm(grasp - a - torch.tensor([0.0, 0.0, 0.08])) < 0.01, 100),
-              (lambda: grasp, lambda: a, 1.0, lambda: torch.linalg.norm(grasp - a) < 0.012, 80),
-              (lambda: grasp, lambda: a, -1.0, lambda: False, 15),                    # close on A
-              (lambda: a, lambda: place_on_b() + torch.tensor([0.0, 0.0, 0.05]), -1.0,
-               lambda: torch.linalg.norm((a - place_on_b())[:2]) < 0.006 and a[2] > place_on_b()[2] + 0.03, 150),
-              (lambda: a, lambda: place_on_b() + torch.tensor([0.0, 0.0, -0.01]), -1.0,
-               lambda: abs(float(a[2] - place_on_b()[2])) < 0.005, 80),                # set A down on B
-              (lambda: grasp, lambda: grasp.clone(), 1.0, lambda: False, 60)]          # let go, hold still
+    picking = [(lambda: grasp, lambda: a + torch.tensor([0.0, 0.0, 0.08]), 1.0,
+                lambda: torch.linalg.norm(grasp - a - torch.tensor([0.0, 0.0, 0.08])) < 0.01, 100),
+               (lambda: grasp, lambda: a, 1.0, lambda: torch.linalg.norm(grasp - a) < 0.012, 80),
+               (lambda: grasp, lambda: a, -1.0, lambda: False, 15)]                     # close on A
+    placing = [(lambda: a, lambda: place_on_b() + torch.tensor([0.0, 0.0, 0.05]), -1.0,
+                lambda: torch.linalg.norm((a - place_on_b())[:2]) < 0.006 and a[2] > place_on_b()[2] + 0.03, 150),
+               (lambda: a, lambda: place_on_b() + torch.tensor([0.0, 0.0, -0.01]), -1.0,
+                lambda: abs(float(a[2] - place_on_b()[2])) < 0.005, 80),               # set A down on B
+               (lambda: grasp, lambda: grasp.clone(), 1.0, lambda: False, 60)]         # let go, hold still
     read = {}  # the state the reward is computed from, as refresh_state finds it
     task_refresh = env.refresh_state
 
@@ -269,8 +265,8 @@ def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
         task_refresh()
 
     env.refresh_state = refresh_state
-    first_reached, done = [], False
-    for point, waypoint, grip, finished, most in phases:
+    first_reached, stage, rew = [], None, None
+    for point, waypoint, grip, finished, most in (picking if pick else []) + placing:
         for _ in range(most):
             _, rew, reset, _ = env.step(steer(point(), waypoint(), grip))
             expected, stage = reference_staged(*read["state"])
@@ -278,12 +274,20 @@ def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
             if stage not in first_reached:
                 first_reached.append(stage)
             if reset[0]:
-                done = True
-                break
+                return True, stage, rew[0].item(), first_reached
             if finished():
                 break
-        if done:
-            break
-    assert done and stage == "stacked" and rew[0].item() == 1.0  # the stacked step pays the most and ends the episode
+    return False, stage, rew[0].item(), first_reached
+
+
+def test_a_scripted_pick_and_place_passes_every_stage_in_order_and_stacks():
+    """The staged reward can be earned to the end (scripted_stack from A on the table): the stages are first reached
+    in their order, and the episode ends a success."""
+    env = make("FrankaCubeStack", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
+               overrides=["task.env.controlType=osc", "task.env.frankaDofNoise=0.0",
+                          "task.env.startRotationNoise=0.0", "task.env.graspedResetFraction=0"])  # A on the table
+    env.reset()
+    done, stage, reward, first_reached = scripted_stack(env, pick=True)
+    assert done and stage == "stacked" and reward == 1.0  # the stacked step pays the most and ends the episode
     assert first_reached == STAGE_NAMES
     assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0]
