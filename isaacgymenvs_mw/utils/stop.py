@@ -20,12 +20,18 @@ stop line, checkpoint or summary. Two guards: a watchdog thread reads the C-leve
 calls ``reassert`` once per iteration, which also catches a replacement made through Python, puts the handler back
 and says once, in one line, what had replaced it (for native code: the library, from /proc/self/maps).
 
+A signal can also land inside a finaliser (a Warp array's ``__del__`` freeing its memory during garbage collection),
+where Python prints and swallows whatever is raised. The protocol's ``sys.unraisablehook`` catches a swallowed
+``StopRequested`` and delivers the signal again to the main thread a moment later (``_thread.interrupt_main``), so the stop still
+happens at once, at the next line outside the finaliser.
+
 Only the main thread handles signals; a process that never calls ``install`` (the package used as a library) gets
 the training behaviour for the duration of ``training`` and its own handlers back afterwards.
 """
 
 from __future__ import annotations
 
+import _thread
 import ctypes
 import ctypes.util
 import functools
@@ -43,6 +49,7 @@ WATCH_INTERVAL_S = 0.05  # how long a replaced C-level handler can stay in place
 # a scheduler's job ends with a diagnosis instead of hanging until its SIGKILL. Saving a checkpoint and the summary
 # takes seconds.
 STOP_GRACE_S = 120.0
+REDELIVER_AFTER_S = 0.01  # a signal discarded in a finaliser is delivered again this much later
 
 
 class StopRequested(KeyboardInterrupt):
@@ -76,6 +83,8 @@ class StopProtocol:
         self._watchdog: threading.Thread | None = None
         self._watch_lock = threading.Lock()
         self._watch_paused = 0  # > 0 while code of ours changes the disposition on purpose (watchdog_paused)
+        self._swallowed = False  # our StopRequested was raised inside a finaliser, which discarded it
+        self._previous_unraisablehook: Any = None
 
     @property
     def installed(self) -> bool:
@@ -93,6 +102,9 @@ class StopProtocol:
             if action is not None:
                 self._actions[signum] = action
         self._installed = True
+        if self._previous_unraisablehook is None:
+            self._previous_unraisablehook = sys.unraisablehook
+            sys.unraisablehook = self._unraisable
         if self._actions and self._watchdog is None:
             self._watchdog = threading.Thread(target=self._watch, name="stop-handler-watchdog", daemon=True)
             self._watchdog.start()
@@ -139,12 +151,25 @@ class StopProtocol:
             with self._watch_lock:
                 self._watch_paused -= 1
 
+    def _unraisable(self, unraisable: Any) -> None:
+        """``sys.unraisablehook``: a StopRequested raised inside a finaliser is not lost (see the module docstring);
+        anything else goes to the hook that was there before."""
+        if isinstance(unraisable.exc_value, StopRequested) and self._runner is None:
+            self._swallowed = True
+            # From another thread, a moment later: called here, the handler would run again inside this hook
+            # and be discarded again. Should it land in a finaliser again, this hook repeats it.
+            threading.Timer(REDELIVER_AFTER_S, _thread.interrupt_main, (unraisable.exc_value.signum,)).start()
+            return
+        self._previous_unraisablehook(unraisable)
+
     def _handle(self, signum: int, frame) -> None:
-        if self.signum is None:
-            self.signum, self._first_at = signum, time.monotonic()
+        if self.signum is None or self._swallowed:
+            if self.signum is None:
+                self.signum, self._first_at = signum, time.monotonic()
+            self._swallowed = False
             if self._runner is None:
-                raise StopRequested(signum)  # starting or evaluating: nothing to save, stop right here
-            self._runner.stop_signal = signum
+                raise StopRequested(self.signum)  # starting or evaluating: nothing to save, stop right here
+            self._runner.stop_signal = self.signum
         elif signum == signal.SIGINT and time.monotonic() - self._first_at >= self.repeat_window_s:
             raise KeyboardInterrupt()
 
@@ -168,6 +193,7 @@ class StopProtocol:
             if previous is not None:  # the package used as a library: the caller's handlers come back
                 for signum, handler in previous.items():
                     signal.signal(signum, handler)
+                sys.unraisablehook, self._previous_unraisablehook = self._previous_unraisablehook, None
                 self._installed = False
                 self.signum = None  # that run has answered its signal; the next one starts unstopped
 
