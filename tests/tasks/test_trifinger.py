@@ -275,3 +275,72 @@ def test_train_py_trains_two_iterations_and_test_mode_evaluates(tmp_path):
     assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 8 * 8
     assert result["episodes"] == 8
     assert 0.0 <= result["consecutive_successes"] <= 1.0
+
+
+def tip_jacobian_policy(env, targets: np.ndarray, kp: float = 60.0, kd: float = 1.0) -> torch.Tensor:
+    """A scripted policy: each fingertip pulled to its target by J^T (kp error - kd velocity) plus the fingers'
+    gravity torques, from MuJoCo C's Jacobians at the fingers' current joint state; normalised torque actions."""
+    m = env.sim.mj_model
+    d = mujoco.MjData(m)
+    joints = [m.joint(f"finger_{part}_{finger}") for finger in FINGER_YAW
+              for part in ("base_to_upper_joint", "upper_to_middle_joint", "middle_to_lower_joint")]
+    qadr, vadr = [j.qposadr[0] for j in joints], [j.dofadr[0] for j in joints]
+    actions = np.zeros((env.num_envs, 9))
+    for e in range(env.num_envs):
+        d.qpos[:], d.qvel[:] = 0.0, 0.0
+        d.qpos[qadr] = env.sim.dof_pos[e].numpy()
+        mujoco.mj_forward(m, d)
+        tau = d.qfrc_bias[vadr].copy()
+        qd = env.sim.dof_vel[e].numpy()
+        for k, finger in enumerate(FINGER_YAW):
+            body = m.body(f"finger_tip_link_{finger}").id
+            jac = np.zeros((3, m.nv))
+            mujoco.mj_jacBody(m, d, jac, None, body)
+            j = jac[:, vadr]
+            tau += j.T @ (kp * (targets[e, k] - d.xpos[body]) - kd * (j @ qd))
+        actions[e] = np.clip(tau / 0.36, -1.0, 1.0)
+    return torch.tensor(actions, dtype=torch.float32)
+
+
+def test_scripted_grasp_lifts_the_cube_to_a_goal_in_the_air_with_success_and_iges_reward(env):
+    """The fingers squeeze the cube from their three sides and lift it 5.5 cm onto a goal at the same orientation:
+    the cube reaches it (IGE's position and orientation tolerances, computed here), and the step's reward is IGE's sum
+    of the three active terms, restated over the fingertip, cube and goal states."""
+    env.reset()
+    mask = torch.ones(2, dtype=torch.bool)
+    centre = np.array([0.0, 0.0, 0.0325])
+    env.sim.write_state(mask, root_pos=torch.tensor(np.stack([centre] * 2), dtype=torch.float32),
+                        root_quat=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2), root_lin_vel=torch.zeros(2, 3),
+                        root_ang_vel=torch.zeros(2, 3), asset="object")
+    goal = centre + [0.0, 0.0, 0.055]
+    env.goal_pos[:] = torch.tensor(goal, dtype=torch.float32)
+    env.goal_quat[:] = torch.tensor([1.0, 0.0, 0.0, 0.0])
+    tips = env.sim.xpos[:, env.tip_ids].numpy()
+    sides = tips[:, :, :2] / np.linalg.norm(tips[:, :, :2], axis=-1, keepdims=True)  # each finger's side of the cube
+
+    def targets(radius: float, lift: float) -> np.ndarray:
+        out = np.zeros((2, 3, 3))
+        out[:, :, :2] = radius * sides
+        out[:, :, 2] = centre[2] + lift
+        return out
+
+    for radius, lift, steps in ((0.08, 0.0, 50), (0.035, 0.0, 30), (0.015, 0.0, 30), (0.015, 0.06, 100)):
+        for _ in range(steps):
+            before_tips, before_cube = env.sim.xpos[:, env.tip_ids].clone(), env.cube.root_pos.clone()
+            _, rew, _, _ = env.step(tip_jacobian_policy(env, targets(radius, lift)))
+    cube_pos, cube_quat = env.cube.root_pos.numpy(), env.cube.root_quat.numpy()
+    after_tips = env.sim.xpos[:, env.tip_ids].numpy()
+    for k in range(2):
+        assert cube_pos[k, 2] > centre[2] + 0.04  # lifted off the table
+        angle = math.acos(max(-1.0, min(1.0, (np.trace(rotmat(cube_quat[k].tolist())) - 1) / 2)))
+        reached = np.linalg.norm(cube_pos[k] - goal) <= 0.02 and angle <= 0.4
+        assert reached and env.success_pos[k] and env.success[k]
+        speed2 = (((after_tips[k] - before_tips[k].numpy()) / POLICY_DT) ** 2).sum()
+        reach = sum(np.linalg.norm(after_tips[k, i] - cube_pos[k]) - np.linalg.norm(before_tips[k, i].numpy()
+                                                                                     - before_cube[k].numpy())
+                    for i in range(3))
+        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3) * 0.0325
+        kernel = np.mean([lgsk(float(np.linalg.norm(cube_pos[k] + rotmat(cube_quat[k].tolist()) @ c - goal - c)), 30.0)
+                          for c in corners])
+        expected = -0.5 * speed2 - 250.0 * reach + 2000.0 * POLICY_DT * kernel
+        assert rew[k].item() == pytest.approx(expected, rel=1e-3, abs=1e-3)
