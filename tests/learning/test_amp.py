@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from conftest import tensorboard_scalars
@@ -25,6 +27,32 @@ def test_style_reward_formula():
     torch.testing.assert_close(style_reward(d, "lsgan", 2.0), torch.tensor(want))
     p = torch.sigmoid(d)
     torch.testing.assert_close(style_reward(d, "bce", 2.0), -2.0 * torch.log(torch.clamp(1 - p, min=1e-4)))
+
+
+def test_humanoid_amp_learner_is_iges():
+    """The shipped HumanoidAMPPPO's discriminator is IGE's (isaacgymenvs/learning/amp_continuous.py): BCE, and the
+    style reward of a logit d is 2 (disc_reward_scale) x -ln(max(1 - 1 / (1 + e^-d), 1e-4)), worked out here with
+    math, not torch. It pays for every transition, also those D scores as the policy's (d <= -1), where the
+    paper's least-squares reward is 0: an episode that lasts longer earns more."""
+    from isaacgymenvs_mw.utils.config import compose_config, to_dict
+
+    train = to_dict(compose_config(["task=HumanoidAMP"]).train)
+    env = with_amp(_Env(), train)
+    assert env.amp_cfg.loss == "bce" and env.amp_cfg.disc_reward_scale == 2.0
+    logits = [-6.0, -3.0, -1.0, 0.0, 1.5, 12.0]
+    want = [-2.0 * math.log(max(1.0 - 1.0 / (1.0 + math.exp(-x)), 1e-4)) for x in logits]
+    got = style_reward(torch.tensor(logits), env.amp_cfg.loss, env.amp_cfg.disc_reward_scale)
+    torch.testing.assert_close(got, torch.tensor(want))
+    assert (got[:3] > 0).all()
+    # the discriminator loss is BCE on the logits (motion 1, policy 0), halved as IGE halves it
+    torch.manual_seed(0)
+    disc = Discriminator(3, (8,), "relu")
+    policy, motion = torch.randn(6, 3), torch.randn(5, 3)
+    cfg = AMPConfig(loss=env.amp_cfg.loss, hidden_dims=(8,), grad_penalty=0.0, logit_reg=0.0, weight_decay=0.0)
+    with torch.no_grad():
+        p_motion, p_policy = torch.sigmoid(disc(motion)), torch.sigmoid(disc(policy))
+        bce = 0.5 * (-torch.log(p_motion).mean() - torch.log(1 - p_policy).mean())
+    torch.testing.assert_close(discriminator_loss(disc, policy, motion, cfg)["loss"].detach(), bce)
 
 
 def test_discriminator_loss_formula():
@@ -132,11 +160,15 @@ def test_two_training_iterations_with_amp(tmp_path):
     runner.learn(2)
     assert env.replay.count == 2 * 4 * 2
     assert not all(torch.equal(a, b) for a, b in zip(before, env.disc.parameters()))
+    # IGE's HumanoidAMPPPO: fixed_sigma with sigma_init -2.9, so the policy's std is exp(-2.9) after learning too
+    std = runner.alg.actor.distribution.std_param
+    torch.testing.assert_close(std.detach(), torch.full_like(std, math.exp(-2.9)), rtol=0, atol=1e-4)
+    assert runner.alg.bounds_loss_coef == 10.0  # IGE's bounds_loss_coef
 
 
 def test_train_py_switches_amp_on_from_the_train_yaml(tmp_path, run_args):
     """launch.run (train.py's path) wraps the env when the train YAML has an amp section: the discriminator's loss and
-    the style reward reach TensorBoard once per iteration, the style reward within [0, disc_reward_scale]."""
+    the style reward reach TensorBoard once per iteration, the style reward within IGE's BCE reward's range."""
     from isaacgymenvs_mw.learning.launch import run
     from isaacgymenvs_mw.utils.config import compose_config
 
@@ -146,7 +178,8 @@ def test_train_py_switches_amp_on_from_the_train_yaml(tmp_path, run_args):
     (run_dir,) = (tmp_path / "runs" / "HumanoidAMP").iterdir()
     scalars = tensorboard_scalars(run_dir)
     assert [step for step, _ in scalars["AMP/disc_loss"]] == [0, 1]
-    assert all(0.0 <= value <= 2.0 for _, value in scalars["AMP/style_reward"])
+    # IGE's BCE style reward: scale x -log(max(1 - sigmoid(D), 1e-4)), between 0 and 2 ln(1e4)
+    assert all(0.0 <= value <= 2.0 * math.log(1e4) for _, value in scalars["AMP/style_reward"])
     # test mode from the run's checkpoint (the discriminator in it is loaded and left alone)
     result = run(compose_config(["task=HumanoidAMP", "num_envs=2", "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
                                  "task.env.episodeLength_s=0.5", *small, *run_args]))

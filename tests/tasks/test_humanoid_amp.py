@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import mujoco
+import numpy
 import pytest
 import torch
 
@@ -59,6 +60,24 @@ def test_reset_pose_is_the_sampled_reference_pose(task):
     torch.testing.assert_close(task._amp_hist[:, 1], want, atol=1e-5, rtol=1e-5)
 
 
+def test_a_demo_is_what_the_policy_side_observes_of_the_same_motion_times(task):
+    """fetch_amp_obs_demo and a reference start draw the same motion times from the same random state; the demo
+    (from the motion library) then equals the AMP history the task builds from the simulator's state (MuJoCo's
+    kinematics of the written pose for now, the motion one policy step earlier before it): same columns, newest
+    first, one policy step apart."""
+    all_envs = torch.ones(N, dtype=torch.bool)
+    rng = torch.get_rng_state()
+    task.reset_envs(all_envs)
+    torch.set_rng_state(rng)
+    demo = task.fetch_amp_obs_demo(N).view(N, 2, 105)
+    hist = task._amp_hist
+    keys = slice(105 - 12, 105)  # key body positions: the library lerps them, MuJoCo places them (mm apart)
+    torch.testing.assert_close(demo[..., :keys.start], hist[..., :keys.start], atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(demo[..., keys], hist[..., keys], atol=1e-2, rtol=0)
+    # the two steps differ (a running clip moves within 1/30 s): the spacing is not zero
+    assert (demo[:, 0] - demo[:, 1]).abs().amax() > 1e-2
+
+
 def test_steps_reward_and_amp_transition(task):
     task.reset_envs(torch.ones(N, dtype=torch.bool))
     before = task._amp_hist[:, 0].clone()
@@ -103,6 +122,34 @@ def test_a_default_start_touches_nothing_and_standing_on_it_does_not_end_the_epi
     for _ in range(10):
         _, _, reset, _ = env.step(hold)
         assert not reset.any()
+
+
+def test_the_reference_motion_touches_nothing_but_its_feet(task):
+    """The fall rule needs a contact of a body other than the feet. Played kinematically in MuJoCo C (mj_forward on
+    the task's compiled model, ground included) at 120 Hz, no pose of the clip has one: no self-contact, no shin,
+    hand or thigh pressing on the ground with more than the rule's 0.1 N. The rule's other half (a body other than
+    the feet below 0.5 m) holds in most frames (the shins' origins, the knees, run as low as 0.34 m), so one such
+    contact would end the episode."""
+    model = task.sim.mj_model
+    data = mujoco.MjData(model)
+    lib = task.motion_lib
+    times = torch.arange(0.0, float(lib.lengths[0]), 1.0 / 120.0)
+    s = lib.state(torch.zeros(times.shape[0], dtype=torch.long), times)
+    feet = {model.body(name).id for name in task.cfg["env"]["contactBodies"]}
+    low_frames = 0
+    for k in range(times.shape[0]):
+        data.qpos[:3], data.qpos[3:7], data.qpos[7:] = s.root_pos[k], s.root_rot[k], s.dof_pos[k]
+        mujoco.mj_forward(model, data)
+        force = numpy.zeros(6)
+        bodies = set()
+        for i, c in enumerate(data.contact[:data.ncon]):
+            mujoco.mj_contactForce(model, data, i, force)
+            if abs(force[0]) > 0.1:  # the rule's 0.1 N (a grazing shin, 0 mm deep, pushes with 0 N)
+                bodies |= {int(model.geom_bodyid[g]) for g in c.geom}
+        assert bodies <= feet | {0}, f"t={times[k]:.3f} s: {[model.body(b).name for b in bodies - feet - {0}]}"
+        others = [b for b in range(1, model.nbody) if b not in feet]
+        low_frames += bool((data.xpos[others, 2] < task.termination_height).any())
+    assert low_frames > times.shape[0] // 2
 
 
 def test_bad_state_init_names_the_key():
