@@ -27,11 +27,11 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 from rsl_rl.models import CNNModel, MLPModel
-from rsl_rl.utils import unpad_trajectories
+from rsl_rl.utils import resolve_nn_activation, unpad_trajectories
 from tensordict import TensorDict
 
 from isaacgymenvs_mw.learning.train_config import CNN_PRECISIONS
-from isaacgymenvs_mw.utils.config import boolean, one_of
+from isaacgymenvs_mw.utils.config import boolean, one_of, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 
@@ -62,22 +62,114 @@ class ByteImageEncoder(nn.Module):
 
 class ImageCNNModel(CNNModel):
     """``rsl_rl.models.CNNModel`` whose image groups are 0-255 pixels; its arguments plus ``cnn_precision``
-    (``float32`` or ``bfloat16``) and ``cnn_channels_last`` (train YAML ``<actor|critic>.cnn_*``)."""
+    (``float32`` or ``bfloat16``), ``cnn_channels_last`` (train YAML ``<actor|critic>.cnn_*``) and ``aux_target``.
+
+    ``aux_target`` (train YAML ``actor.aux_target``, default None: no head): ``{group: <env obs group>, hidden_dims:
+    [64], activation: elu}`` adds an auxiliary head, an MLP on the CNN features (the image encoders' outputs
+    concatenated, before the flat groups join them) that predicts the named observation group of the env (e.g.
+    ``critic``, the cube's pose), as Isaac Lab's vision ShadowHand regresses the cube's keypoints from its images
+    (isaac-sim/IsaacLab, source/isaaclab_tasks/isaaclab_tasks/direct/shadow_hand/feature_extractor.py). Its loss
+    (``aux_loss``: mean squared error against the group's raw values, the target detached) is added to PPO's by
+    ``SyncFreePPO`` with ``algorithm.aux_loss_coef``, so the encoders also learn features that locate the object.
+
+    The head is no part of the policy: the action never reads it and the exported policies (``as_jit``,
+    ``as_onnx``) copy the encoders, the normaliser and the MLP only. Its weights are in the checkpoint's
+    ``actor_state_dict``, so a checkpoint loads into a model built with the same ``aux_target``.
+
+    Features: each forward keeps its CNN features with what they were computed from (as ``SharedTrunkActor`` keeps
+    its trunk's), and ``aux_loss`` on that very observation object, its image tensors unchanged and in the same grad
+    mode, takes them instead of running the encoders again, so that a PPO mini-batch runs the encoders once and the
+    gradient of both losses reaches them in one backward pass. Any other call (another observation, tensors written
+    in place since, features computed without grad) runs the encoders itself.
+    """
+
+    aux_head: nn.Module | None
+    aux_group: str | None
+    _handover: _TrunkFeatures | None = None  # the last forward's CNN features, while the head is there
 
     def __init__(self, obs: TensorDict, obs_groups: dict[str, list[str]], obs_set: str, *args,
-                 cnn_precision: str = CNN_PRECISIONS[0], cnn_channels_last: bool = False, **kwargs) -> None:
+                 cnn_precision: str = CNN_PRECISIONS[0], cnn_channels_last: bool = False,
+                 aux_target: dict | None = None, **kwargs) -> None:
         precision = one_of(cnn_precision, f"train.{obs_set}.cnn_precision", CNN_PRECISIONS)
         channels_last = boolean(cnn_channels_last, f"train.{obs_set}.cnn_channels_last")
         super().__init__(obs, obs_groups, obs_set, *args, **kwargs)
         for group, cnn in list(self.cnns.items()):
             if not isinstance(cnn, ByteImageEncoder):  # CNNs shared with another model come wrapped already
                 self.cnns[group] = ByteImageEncoder(cnn, precision, channels_last)
+        self.aux_group, self.aux_head = None, None
+        if aux_target is not None:
+            self.aux_group, self.aux_head = _aux_head(aux_target, obs, self.cnn_latent_dim, f"train.{obs_set}")
+
+    def get_latent(self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state=None) -> torch.Tensor:
+        """``CNNModel``'s latent (the flat groups, normalised, then the CNN features), keeping the CNN features for
+        ``aux_loss`` when the model has the head."""
+        features = self.cnn_features(obs)
+        if self.aux_head is not None:
+            self._handover = _TrunkFeatures(obs, [obs[group] for group in self.obs_groups_2d], features)
+        if not self.obs_groups:
+            return features
+        return torch.cat([MLPModel.get_latent(self, obs), features], dim=-1)
+
+    def cnn_features(self, obs: TensorDict) -> torch.Tensor:
+        """The image encoders' outputs, concatenated in the order of the image groups."""
+        return torch.cat([self.cnns[group](obs[group]) for group in self.obs_groups_2d], dim=-1)
+
+    def aux_prediction(self, obs: TensorDict) -> torch.Tensor:
+        """The head's prediction of the ``aux_target`` group from ``obs``'s images (the last forward's features when
+        it read ``obs`` itself, else the encoders run here)."""
+        if self.aux_head is None:
+            raise ConfigError("this model has no auxiliary head: give train.actor.aux_target, e.g. {group: critic}")
+        held, self._handover = self._handover, None
+        fresh = held is None or not held.read(obs, self.obs_groups_2d)
+        return self.aux_head(self.cnn_features(obs) if fresh else held.features)
+
+    def aux_loss(self, obs: TensorDict, masks: torch.Tensor | None = None) -> torch.Tensor:
+        """Mean squared error of the head's prediction against ``obs[aux_group]`` (raw values, no gradient to the
+        target), over samples and values, in float32. ``masks``: a recurrent learner's padded batch, unpadded as the
+        forward unpads it (the encoders then run again: the unpadded batch is a new object)."""
+        obs = unpad_trajectories(obs, masks) if masks is not None else obs
+        prediction = self.aux_prediction(obs).float()
+        target = obs[self.aux_group].detach().float()  # type: ignore[index]
+        return (prediction - target).square().mean()
 
     def as_jit(self) -> nn.Module:
         return _plain_encoders(super().as_jit())
 
     def as_onnx(self, verbose: bool = False) -> nn.Module:
         return _plain_encoders(super().as_onnx(verbose))
+
+
+AUX_TARGET_KEYS = ("group", "hidden_dims", "activation")
+
+
+def _aux_head(spec, obs: TensorDict, input_dim: int, section: str) -> tuple[str, nn.Module]:
+    """``aux_target``'s group and head (Linear + activation per hidden layer, then a Linear to the group's size),
+    checked against the observations; bad values fail naming ``<section>.aux_target.<key>``."""
+    key = f"{section}.aux_target"
+    if not isinstance(spec, dict) or "group" not in spec:
+        raise ConfigError(f"{key}={spec!r} is invalid: give {{group: <observation group>, hidden_dims: [64]}}")
+    unknown = sorted(set(spec) - set(AUX_TARGET_KEYS))
+    if unknown:
+        raise ConfigError(f"{key}.{unknown[0]} is not a key of {key}; valid: {list(AUX_TARGET_KEYS)}")
+    group = spec["group"]
+    flat = [name for name in obs.keys() if obs[name].dim() == 2]
+    if group not in flat:
+        raise ConfigError(f"{key}.group={group!r} is invalid: choose one of the flat observation groups {flat}")
+    dims = spec.get("hidden_dims", [64])
+    if not isinstance(dims, (list, tuple)):
+        raise ConfigError(f"{key}.hidden_dims={dims!r} is invalid: give a list of layer sizes, e.g. [64]")
+    dims = [whole_number(d, f"{key}.hidden_dims", 1) for d in dims]
+    activation = spec.get("activation", "elu")
+    try:
+        resolve_nn_activation(activation)
+    except (ValueError, AttributeError) as error:
+        raise ConfigError(f"{key}.activation={activation!r} is invalid: {error}") from None
+    layers: list[nn.Module] = []
+    for size in dims:
+        layers += [nn.Linear(input_dim, size), resolve_nn_activation(activation)]
+        input_dim = size
+    layers.append(nn.Linear(input_dim, obs[group].shape[-1]))
+    return group, nn.Sequential(*layers)
 
 
 def _plain_encoders(exported: nn.Module) -> nn.Module:

@@ -43,7 +43,7 @@ from isaacgymenvs_mw.learning.ppo_learning_rate import (
     LR_MIN,
     DeviceLearningRate,
 )
-from isaacgymenvs_mw.learning.ppo_losses import bounds_loss, rl_games_kl
+from isaacgymenvs_mw.learning.ppo_losses import bounds_loss, check_aux_loss, rl_games_kl
 from isaacgymenvs_mw.learning.train_config import (
     GRAD_CLIP_SCOPES,
     KL_FORMS,
@@ -64,6 +64,12 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
 
     ``bounds_loss_coef`` (train YAML ``algorithm.bounds_loss_coef``, default 0: none): weight of rl_games' bounds
     loss on the action means (``bounds_loss``), which IsaacGymEnvs' configs use.
+
+    ``aux_loss_coef`` (train YAML ``algorithm.aux_loss_coef``, default 0: none): weight of the actor's auxiliary loss
+    (``ImageCNNModel.aux_loss``: its image encoders' features predict an observation group, ``actor.aux_target``),
+    added to each mini-batch's loss; its mean over the update is logged as ``aux`` (Loss/aux). Captured with the
+    rest of the update. > 0 needs an actor with ``aux_target``; with 0 such a head stays as initialised
+    (``check_aux_loss``).
 
     ``learning_rate_min``, ``learning_rate_max`` (train YAML ``algorithm.learning_rate_min`` / ``_max``, default 1e-5
     and 1e-2: rsl-rl-lib's fixed bounds): the range in which the ``adaptive`` schedule keeps the learning rate. Both
@@ -108,7 +114,7 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
                  normalize_value: bool = False, learning_rate_min: float = LR_MIN, learning_rate_max: float = LR_MAX,
                  kl_schedule: str = KL_SCHEDULES[0], kl_form: str = KL_FORMS[0],
                  grad_clip_scope: str = GRAD_CLIP_SCOPES[0], obs_normalization_clip: float | None = None,
-                 obs_normalization_form: str = OBS_NORMALIZATION_FORMS[0],
+                 obs_normalization_form: str = OBS_NORMALIZATION_FORMS[0], aux_loss_coef: float = 0.0,
                  **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.learning_rate_min, self.learning_rate_max = self._check_rate_bounds(learning_rate_min, learning_rate_max)
@@ -124,6 +130,7 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
         self.bounds_loss_coef = real_number(bounds_loss_coef, "train.algorithm.bounds_loss_coef", low=0)
         self.normalize_value = boolean(normalize_value, "train.algorithm.normalize_value")
         self.value_normalizer = ValueNormalizer(self.device) if self.normalize_value else None
+        self.aux_loss_coef = check_aux_loss(aux_loss_coef, self._raw_actor, self._raw_critic)
         if self.bounds_loss_coef > 0.0:
             self._need_gaussian("train.algorithm.bounds_loss_coef > 0", "it bounds the action means")
         unsupported = [key for key, used in (("rnd_cfg", self.rnd), ("symmetry_cfg", self.symmetry)) if used]
@@ -255,10 +262,13 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
                 # rsl-rl-lib replaces the std tensor; a captured update reads the one it was captured with
                 normalizer._std = std.copy_(normalizer._std)
         num_updates = self.num_learning_epochs * self.num_mini_batches
-        value, surrogate, entropy, rate = torch.cat([(loss_sums / num_updates).double(), self._lr64.view(1)]).tolist()
-        self.learning_rate = rate
+        means = torch.cat([(loss_sums / num_updates).double(), self._lr64.view(1)]).tolist()
+        value, surrogate, entropy, *aux, self.learning_rate = means
         self.storage.clear()
-        return {"value": value, "surrogate": surrogate, "entropy": entropy}
+        losses = {"value": value, "surrogate": surrogate, "entropy": entropy}
+        if aux:  # aux_loss_coef > 0: the auxiliary loss's mean, Loss/aux in TensorBoard
+            losses["aux"] = aux[0]
+        return losses
 
     def _normalize_value_targets(self) -> None:
         """rl_games' prepare_dataset: merge the rollout's values, then its returns, into the statistics, then bring
@@ -276,7 +286,8 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
 
     def _optimisation_steps(self, batches: Iterable[RolloutStorage.Batch]) -> torch.Tensor:
         adaptive, per_epoch = self._adaptive, self._per_epoch_kl
-        loss_sums = torch.zeros(3, device=self.device)
+        use_aux = self.aux_loss_coef > 0.0
+        loss_sums = torch.zeros(4 if use_aux else 3, device=self.device)
         epoch_kl = torch.zeros((), device=self.device)  # kl_schedule=per_epoch: the sum over the epoch's mini-batches
         for k, batch in enumerate(batches):
             if self.normalize_advantage_per_mini_batch:
@@ -302,6 +313,9 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
                 loss = surrogate_loss + self.value_loss_coef * value_loss - self.entropy_coef * entropy
                 if self.bounds_loss_coef > 0.0:
                     loss = loss + self.bounds_loss_coef * bounds_loss(self.actor.output_distribution_params[0])
+                if use_aux:  # after the actor's forward on the same batch, whose image features it takes
+                    aux_loss = self._raw_actor.aux_loss(batch.observations, masks=batch.masks)
+                    loss = loss + self.aux_loss_coef * aux_loss
 
             self._flat.zero_()
             for param, view in zip(self._params, self._grad_views):
@@ -314,7 +328,8 @@ class SyncFreePPO(DeviceLearningRate, MiniBatchUpdate, PPO):
             # One non-finite sample (a blown-up world's state, a return that overflowed) makes the loss or the
             # gradient NaN, and one Adam step with it makes every weight NaN for good: such a step is skipped on the
             # device (fused Adam's found_inf) and counted, its losses left out of the sums. No host read.
-            losses = torch.stack([value_loss.detach(), surrogate_loss.detach(), entropy.detach()]).float()
+            terms = [value_loss, surrogate_loss, entropy, *([aux_loss] if use_aux else [])]
+            losses = torch.stack([t.detach().float() for t in terms])
             torch.logical_and(torch.isfinite(self._flat).all(), torch.isfinite(loss.detach()), out=self._step_ok)
             self.optimizer.found_inf = (~self._step_ok).float()
             self._skipped_steps += (~self._step_ok).long()

@@ -7,11 +7,13 @@ model written here puts it; one training iteration plus test mode for both tasks
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from conftest import tensorboard_scalars
 from isaacgymenvs_mw import make as make_task
 from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
@@ -259,6 +261,12 @@ def test_one_training_iteration_then_test_mode(tmp_path, run_args, task):
         assert list(cfg.train.runner.obs_groups.critic) == ["policy", "critic"]
     summary = run(cfg)
     assert summary["iterations"] == 1 and summary["success"] == 0.0  # 6-step episodes cannot lift the cube
+    losses, logged = summary["history"][0]["losses"], tensorboard_scalars(Path(summary["run_dir"]))
+    if task == "FrankaCubeLift":
+        assert "aux" not in losses and "Loss/aux" not in logged
+    else:  # the pixel recipes train the image features to predict the cube's state too (actor.aux_target)
+        assert math.isfinite(losses["aux"]) and losses["aux"] > 0.0
+        assert logged["Loss/aux"] == [(0, pytest.approx(losses["aux"], rel=1e-6))]
     (checkpoint,) = (tmp_path / "runs" / task).glob("*/model_1.pt")
     result = run(compose_config([f"task={task}", "num_envs=2", "test=True", f"checkpoint={checkpoint}", *short,
                                  *run_args]))
