@@ -18,8 +18,8 @@ class MiniBatchUpdate:
     def run_mini_batches(self) -> torch.Tensor:
         """All optimisation steps of one update, queued without a host read.
 
-        Returns the device tensor of summed [value loss, surrogate loss, entropy(, auxiliary loss)] over the mini-batches; with a
-        captured update it is the graph's output, overwritten by the next update.
+        Returns the device tensor of summed [value loss, surrogate loss, entropy(, auxiliary loss)] over the
+        mini-batches; with a captured update it is the graph's output, overwritten by the next update.
         """
         if self._per_epoch_kl and self._kl_reference is None:  # outside any capture: the first update is eager
             params = self.storage.distribution_params  # type: ignore[union-attr]
