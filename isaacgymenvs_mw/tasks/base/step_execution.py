@@ -152,20 +152,21 @@ class StepExecution:
     def _first_compiled_call(self) -> None:
         # Compiles unless the first step compiled it ahead (about 15 s on a GPU host with cold caches, 2 s warm): say
         # where the time of a run's first iteration went, then step with the compiled function alone.
-        started, graphs = time.perf_counter(), self._step.compiles
+        started, graphs, cache = time.perf_counter(), self._step.compiles, inductor_cache_counts()
         self._step.fn()
         self.after = self._step.fn
         if self._step.compiles > graphs:
             again = self.compiled_at is not None  # compiled ahead, but torch's guards found the state changed since
             self.compiled_at = "first step"
             print(f"[isaacgymenvs_mw] {'re' if again else ''}compiled {self.name}'s post-physics step "
-                  f"(sim.compileStep) at the first step in {time.perf_counter() - started:.1f} s", flush=True)
+                  f"(sim.compileStep) at the first step in {time.perf_counter() - started:.1f} s"
+                  f"{inductor_cache_note(cache)}", flush=True)
 
     def _compile_ahead(self) -> None:
         """Compile the step without running it (the simulator calls this while its kernels compile). When torch
         cannot take the whole step as one graph, it compiles at the first step instead, as it always did; any other
         error is raised here, as the first step would have raised it."""
-        started = time.perf_counter()
+        started, cache = time.perf_counter(), inductor_cache_counts()
         why_not = self._step.compile_only()
         if why_not is not None:
             print(f"[isaacgymenvs_mw] {self.name}'s post-physics step is compiled by its first call instead "
@@ -173,7 +174,8 @@ class StepExecution:
             return
         self.compiled_at = "alongside Warp's kernels"
         print(f"[isaacgymenvs_mw] compiled {self.name}'s post-physics step (sim.compileStep) "
-              f"in {time.perf_counter() - started:.1f} s, alongside Warp's kernels", flush=True)
+              f"in {time.perf_counter() - started:.1f} s, alongside Warp's kernels{inductor_cache_note(cache)}",
+              flush=True)
 
     def _capture(self) -> None:
         before, after = torch.cuda.CUDAGraph(), torch.cuda.CUDAGraph()
@@ -275,6 +277,25 @@ def _with_own_code(fn: Callable[[], None]) -> Callable[[], None]:
                               func.__closure__)
     copy.__kwdefaults__, copy.__qualname__ = func.__kwdefaults__, func.__qualname__
     return types.MethodType(copy, fn.__self__) if hasattr(fn, "__func__") else copy
+
+
+def inductor_cache_counts() -> tuple[int, int]:
+    """Graphs that Inductor has so far, in this process, read back from its FX graph cache, and compiled (a miss, or
+    a graph its cache cannot hold)."""
+    from torch._dynamo.utils import counters
+
+    inductor = counters["inductor"]
+    return inductor["fxgraph_cache_hit"], inductor["fxgraph_cache_miss"] + inductor["fxgraph_cache_bypass"]
+
+
+def inductor_cache_note(before: tuple[int, int]) -> str:
+    """What Inductor's cache served since ``inductor_cache_counts()`` gave ``before``, for the step's compile line: a
+    shipped cache folder (utils/compile_cache.py) that serves the step reads every graph back. Empty where Inductor
+    counted no graph (its caches turned off)."""
+    hits, compiled = (now - then for now, then in zip(inductor_cache_counts(), before))
+    if hits + compiled == 0:
+        return ""
+    return f" (Inductor's cache: {hits} of {hits + compiled} graphs read back)"
 
 
 def start_compile_workers_ignoring_sigterm() -> None:
