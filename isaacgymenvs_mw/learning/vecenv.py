@@ -77,7 +77,7 @@ class EpisodeStats:
     def count(self, name: str, counter: torch.Tensor) -> None:
         """Report ``counter`` (a device scalar the task adds to, e.g. inside a captured step) as ``name`` at each
         ``pop``, which zeroes it: counted for free in the step, read with the iteration's one host read."""
-        self._counters[name] = counter
+        self._counters[name] = counter.reshape(())  # a view: a (1,) counter reads and zeroes as a scalar
 
     def pop(self) -> dict[str, float]:
         # The running values and counters come back with the totals, in the same device-to-host read.

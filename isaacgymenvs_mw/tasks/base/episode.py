@@ -57,7 +57,10 @@ class Episode:
         self.success_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # reached the goal this step
         self.nonfinite_buf = torch.zeros(n, device=dev, dtype=torch.bool)
         self.nonfinite_inputs_buf = torch.zeros(n, device=dev, dtype=torch.bool)  # NaN/inf in its obs or reward
-        self.nonfinite_inputs_count = torch.zeros((), device=dev, dtype=torch.float64)  # summed over steps
+        # Summed over steps. Shape (1,), not (): torch.compile reads a 0-dim CPU tensor as a Python number, turns
+        # it into a symbolic float and then restarts its analysis of the step to specialise it (1-2 s of every
+        # CPU start-up).
+        self.nonfinite_inputs_count = torch.zeros(1, device=dev, dtype=torch.float64)
 
     def count_step(self) -> None:
         """One more env step of the run (in place: the schedules and the reward curriculum hold this tensor, and a
