@@ -13,6 +13,10 @@ from __future__ import annotations
 
 from isaacgymenvs_mw.tasks.allegro_hand import AllegroHand
 from isaacgymenvs_mw.tasks.allegro_kuka import AllegroKuka
+from isaacgymenvs_mw.tasks.allegro_kuka_subtasks import (
+    AllegroKukaRegrasping,
+    AllegroKukaThrow,
+)
 from isaacgymenvs_mw.tasks.ant import Ant
 from isaacgymenvs_mw.tasks.anymal import Anymal
 from isaacgymenvs_mw.tasks.ball_balance import BallBalance
@@ -39,6 +43,8 @@ from isaacgymenvs_mw.utils.errors import UnknownNameError
 isaacgym_task_map: dict[str, type[VecTask]] = {
     "AllegroHand": AllegroHand,
     "AllegroKuka": AllegroKuka,
+    "AllegroKukaRegrasping": AllegroKukaRegrasping,  # IGE: task AllegroKuka, subtask regrasping (its class name)
+    "AllegroKukaThrow": AllegroKukaThrow,  # IGE: task AllegroKuka, subtask throw (its class name)
     "Ant": Ant,
     "Anymal": Anymal,
     "AnymalTerrain": Anymal,  # same class; cfg/task/AnymalTerrain.yaml adds env.terrain

@@ -5,7 +5,9 @@ Facts from isaac-sim/IsaacGymEnvs (commit aeed298): isaacgymenvs/tasks/allegro_k
 allegro_kuka_reorientation.py, allegro_kuka_utils.py and cfg/task/AllegroKuka.yaml. The scene
 (``cfg/task/AllegroKuka.yaml``): the robot (``env.asset``, ``assets/mjcf/allegro_kuka.xml``, 23 position servos)
 with its base at (0, 0.8, 0), the 5 cm cube (``env.assets.object``) 0.1 m above the table (``env.assets.table``) and
-the goal marker (``env.assets.goal``, a mocap copy of the cube).
+the goal marker (``env.assets.goal``, a mocap copy of the cube). IGE's other two subtasks, regrasping and throw, are
+subclasses in tasks/allegro_kuka_subtasks.py: they override the keypoints, the goal draw (``_sample_goals``), the
+failure rule and what a success resets.
 
 Actions (23): the arm's 7 targets move by ``dofSpeedScale`` x 1/60 s x the action (IGE's sim dt) each policy step;
 the hand's 16 are absolute targets over each joint's range, smoothed by ``actionsMovingAverage``; all clamped to the
@@ -71,7 +73,14 @@ class AllegroKuka(VecTask):
     """Observation (117, IGE's ``full_state``): joint positions over their ranges and speeds, the palm centre, the
     palm's orientation and velocities, the cube's, fingertips and keypoints relative to the palm, keypoints relative
     to their goals, the cube's scales, the episode's closest keypoint and fingertip distances, the lifted flag,
-    log progress, log successes and the step's reward. Actions (23): arm and hand joint targets."""
+    log progress, log successes and the step's reward. Actions (23): arm and hand joint targets.
+
+    Subclasses (the other subtasks) set ``keypoint_pattern`` (each keypoint's sign per axis, x half the keypoint
+    span; the observation has 3 values per keypoint twice) and ``hand_far_ends_episode``, and override
+    ``_sample_goals``."""
+
+    keypoint_pattern: tuple[tuple[int, int, int], ...] = KEYPOINTS
+    hand_far_ends_episode: bool = True  # IGE's reorientation rule only (its _extra_reset_rules)
 
     def __init__(self, cfg, rl_device, sim_device, graphics_device_id, headless,
                  virtual_screen_capture=False, force_render=False):
@@ -109,7 +118,9 @@ class AllegroKuka(VecTask):
         self.palm_offset = torch.tensor(PALM_OFFSET, device=dev).expand(n, 3)
         self.tip_offsets = torch.tensor(FINGERTIP_OFFSETS, device=dev).expand(n, 4, 3)
         half_span = self.k["objectBaseSize"] * self.k["keypointScale"] / 2.0
-        self.keypoint_offsets = (torch.tensor(KEYPOINTS, dtype=torch.float32, device=dev) * half_span).expand(n, 4, 3)
+        pattern = torch.tensor(self.keypoint_pattern, dtype=torch.float32, device=dev)
+        self.num_keypoints = pattern.shape[0]
+        self.keypoint_offsets = (pattern * half_span).expand(n, self.num_keypoints, 3)
         self.object_scales = torch.ones((n, 3), device=dev)  # the default cube: scale 1 on each axis
         free = self.cube.layout.free_qpos
         self.object_start_pos = torch.tensor(sim.mj_model.qpos0[free:free + 3], dtype=torch.float32, device=dev)
@@ -207,7 +218,7 @@ class AllegroKuka(VecTask):
         torch.minimum(self.closest_fingertip_dist, self.tip_dist, out=self.closest_fingertip_dist)
         keypoint = torch.clamp(self.closest_keypoint_max_dist - self.keypoints_max_dist, 0.0, KEYPOINT_DELTA_CLIP)
         torch.minimum(self.closest_keypoint_max_dist, self.keypoints_max_dist, out=self.closest_keypoint_max_dist)
-        near_goal = self.keypoints_max_dist <= self.success_tolerance * self.k["keypointScale"]
+        near_goal = self.near_goal()
         self.near_goal_steps += near_goal.long()
         success = self.near_goal_steps >= self.success_steps
         self.successes += success.float()
@@ -220,6 +231,11 @@ class AllegroKuka(VecTask):
                       "allegro_actions_penalty": -vel[:, NUM_ARM_DOFS:].abs().sum(dim=-1)}
         if self.max_consecutive_successes > 0:
             self.progress_buf.masked_fill_(success, 0)  # IGE: the time limit counts from the last success
+
+    def near_goal(self) -> torch.Tensor:
+        """(num_envs,) bool: IGE's success test, the furthest keypoint within successTolerance x keypointScale of its
+        goal (with one keypoint at the centre, the cube's centre that close to the goal position)."""
+        return self.keypoints_max_dist <= self.success_tolerance * self.k["keypointScale"]
 
     def _curriculum(self) -> None:
         """IGE's tolerance_curriculum: every toleranceCurriculumInterval policy steps at most, if the episodes that
@@ -235,8 +251,11 @@ class AllegroKuka(VecTask):
         self.metrics.record(SUCCESS_TOLERANCE, self.success_tolerance)
 
     def check_termination(self) -> torch.Tensor:
-        # the cube fell below 0.1 m, or the hand is 1.5 m from it
-        return (self.cube.root_pos[:, 2] < FALL_HEIGHT) | (self.tip_dist.max(dim=-1).values > HAND_FAR)
+        # the cube fell below 0.1 m, or (reorientation) the hand is 1.5 m from it
+        fell = self.cube.root_pos[:, 2] < FALL_HEIGHT
+        if not self.hand_far_ends_episode:
+            return fell
+        return fell | (self.tip_dist.max(dim=-1).values > HAND_FAR)
 
     def check_success(self) -> torch.Tensor:
         # maxConsecutiveSuccesses successes (0: no limit): the episode ends, bootstrapped like a time-out
@@ -283,6 +302,7 @@ class AllegroKuka(VecTask):
     # ------------------------------------------------------------------ observation
     def observation_terms(self) -> list[ObsTerm]:
         sim, cube, n = self.sim, self.cube, self.num_envs
+        kp = 3 * self.num_keypoints
         return [
             ObsTerm("dof_pos", sim.num_dof, compute=self._unscaled_dof_pos),                # -1 ... 1 over the range
             ObsTerm("dof_vel", sim.num_dof, compute=lambda: sim.dof_vel),                   # rad/s
@@ -292,10 +312,10 @@ class AllegroKuka(VecTask):
                 (cube.root_quat, cube.root_lin_vel, quat_rotate(cube.root_quat, cube.root_ang_vel)), dim=-1)),
             ObsTerm("fingertip_rel_palm", 12,
                     compute=lambda: (self.tip_pos - self.palm_center.unsqueeze(1)).reshape(n, 12)),
-            ObsTerm("keypoints_rel_palm", 12,
-                    compute=lambda: (self.obj_keypoints - self.palm_center.unsqueeze(1)).reshape(n, 12)),
-            ObsTerm("keypoints_rel_goal", 12,
-                    compute=lambda: (self.obj_keypoints - self.goal_keypoints).reshape(n, 12)),
+            ObsTerm("keypoints_rel_palm", kp,
+                    compute=lambda: (self.obj_keypoints - self.palm_center.unsqueeze(1)).reshape(n, kp)),
+            ObsTerm("keypoints_rel_goal", kp,
+                    compute=lambda: (self.obj_keypoints - self.goal_keypoints).reshape(n, kp)),
             ObsTerm("object_scales", 3, compute=lambda: self.object_scales),
             ObsTerm("closest_keypoint_max_dist", 1, compute=lambda: self.closest_keypoint_max_dist.unsqueeze(-1)),
             ObsTerm("closest_fingertip_dist", 4, compute=lambda: self.closest_fingertip_dist),
@@ -333,35 +353,40 @@ class AllegroKuka(VecTask):
         self.sim.ctrl[:, :self.num_actions] = self.prev_targets
         self.push_forces.masked_fill_(mask.view(-1, 1, 1), 0.0)
         self._draw_push_prob(mask)
+        self._reset_object(mask)
+        self._new_goals(mask)
 
-        # The cube: its start position with uniform noise per axis, any orientation, at rest.
+    def _reset_object(self, mask: torch.Tensor) -> None:
+        """IGE's reset_object_pose for the masked envs: the cube at its start position with uniform noise per axis,
+        any orientation, at rest; not lifted, and the closest fingertip distances unset."""
+        n, dev = self.num_envs, self.device
         noise = self.position_noise * (2.0 * torch.rand((n, 3), device=dev) - 1.0)
         zero = torch.zeros((n, 3), device=dev)
         self.sim.write_state(mask, root_pos=self.object_start_pos + noise, root_quat=random_quaternion(n, dev),
                              root_lin_vel=zero, root_ang_vel=zero, asset="object", refresh=False)
         self.lifted.masked_fill_(mask, False)
-        self.closest_fingertip_dist.masked_fill_(rows, -1.0)
-        self._new_goals(mask)
+        self.closest_fingertip_dist.masked_fill_(mask.unsqueeze(1), -1.0)
 
     def _new_goals(self, mask: torch.Tensor) -> None:
-        """New goal poses for the masked envs (IGE's _reset_target), shown by the goal marker."""
-        rows = mask.unsqueeze(1)
-        low = torch.tensor(TARGET_VOLUME_MIN, device=self.device)
-        high = torch.tensor(TARGET_VOLUME_MAX, device=self.device)
-        drawn = low + torch.rand((self.num_envs, 3), device=self.device) * (high - low)
-        self.goal_pos.copy_(torch.where(rows, drawn, self.goal_pos))
-        self.goal_quat.copy_(torch.where(rows, random_quaternion(self.num_envs, self.device), self.goal_quat))
+        """New goals for the masked envs (IGE's reset_target_pose), shown by the goal marker."""
+        self._sample_goals(mask)
         self.sim.mocap_pos[:, self.goal_marker] = self.goal_pos
         self.sim.mocap_quat[:, self.goal_marker] = self.goal_quat
         self.near_goal_steps.masked_fill_(mask, 0)
         self.closest_keypoint_max_dist.masked_fill_(mask, -1.0)
 
+    def _sample_goals(self, mask: torch.Tensor) -> None:
+        """IGE's reorientation _reset_target: goal positions uniform in the target box, orientations uniform."""
+        rows = mask.unsqueeze(1)
+        self.goal_pos.copy_(torch.where(rows, uniform_in_box(self.num_envs, self.device), self.goal_pos))
+        self.goal_quat.copy_(torch.where(rows, random_quaternion(self.num_envs, self.device), self.goal_quat))
+
 
 def check_settings(env, k: dict[str, float]) -> None:
     """One-line errors for what this port does not do and settings outside their domain."""
     if env.get("objectType", "block") != "block":
-        raise ConfigError(f"env.objectType={env.get('objectType')!r} is invalid: the reorientation task has 'block' "
-                          "only")
+        raise ConfigError(f"env.objectType={env.get('objectType')!r} is invalid: IsaacGymEnvs' AllegroKuka has "
+                          "'block' only")
     if env.get("randomizeObjectDimensions", False):
         raise ConfigError("env.randomizeObjectDimensions=True is not supported: give False (one cube of "
                           "env.objectBaseSize in every env)")
@@ -403,6 +428,13 @@ def lifting_terms(object_z: torch.Tensor, start_z: torch.Tensor | float, lifted:
     z_lift = LIFT_OFFSET + object_z - start_z
     now = (z_lift > threshold) | lifted
     return torch.clamp(z_lift, 0.0, LIFT_CLIP) * ~now, (now & ~lifted).float(), now
+
+
+def uniform_in_box(n: int, device: torch.device | str) -> torch.Tensor:
+    """(n, 3) points uniform in IGE's target volume (origin (0, 0.05, 0.8) + extent, world frame)."""
+    low = torch.tensor(TARGET_VOLUME_MIN, device=device)
+    high = torch.tensor(TARGET_VOLUME_MAX, device=device)
+    return low + torch.rand((n, 3), device=device) * (high - low)
 
 
 def random_quaternion(n: int, device: torch.device | str) -> torch.Tensor:
