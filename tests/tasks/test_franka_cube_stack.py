@@ -84,8 +84,10 @@ def test_reward_terms_equal_the_reference_formula_on_constructed_states():
 
 @pytest.fixture(scope="module")
 def env():
-    # IsaacGymEnvs' reward, whose success and 16 these tests check (the staged default: test_franka_cube_stack_staged)
-    return make("FrankaCubeStackIGE", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True)
+    # IsaacGymEnvs' reward, whose success and 16 these tests check (the staged default: test_franka_cube_stack_staged),
+    # with joint_pos control, whose 9-joint observation and 8 actions they read (osc's: test_osc_... below)
+    return make("FrankaCubeStackIGE", num_envs=3, sim_device="cpu", rl_device="cpu", headless=True,
+                overrides=["task.env.controlType=joint_pos"])
 
 
 def test_the_isaacgymenvs_reward_is_a_task_of_its_own_that_differs_only_in_it():

@@ -24,7 +24,7 @@ TABLE_TOP = -0.1  # assets/mjcf/table.xml
 Q0 = np.array([0.0, 0.1963, 0.0, -2.6180, 0.0, 2.9416, 0.7854, 0.04, 0.04])  # IGE's arm pose, the gripper open
 
 
-SHIPPED_LEVELS = (0.0, 2.0, 3.0, 4.0, 6.0, 8.0)  # cfg/task/FrankaCubeStack.yaml, env.reward.stageLevels
+SHIPPED_LEVELS = (0.0, 1.0, 3.0, 4.0, 6.0, 8.0)  # cfg/task/FrankaCubeStack.yaml, env.reward.stageLevels
 LIFT_HEAVY_LEVELS = (0.0, 1.0, 3.0, 4.5, 6.0, 9.0)  # another valid set: the lift pays more than the grasp
 
 
@@ -109,7 +109,10 @@ def test_stages_pay_in_order_on_hand_built_states():
     a, g, opening, v = (np.array([s[i] for s in states.values()]) for i in range(4))
     reward, stage = staged(a, np.tile(b, (len(states), 1)), g, opening, v, np.zeros_like(v))
     assert stage == ["reach", "grasp", "carry", "release", "release", "stacked"]
-    assert list(reward) == sorted(reward) and len(set(reward)) == len(reward), dict(zip(states, reward))
+    # Levels 1 apart (reach 0, grasp 1 in the shipped set) make a fully reached A pay what a grasp with no progress
+    # pays; from the grasp on, each state pays more than the one before.
+    assert list(reward) == sorted(reward) and len(set(reward[1:])) == len(reward) - 1, dict(zip(states, reward))
+    assert reward[0] == pytest.approx(SHIPPED_LEVELS[1] / SHIPPED_LEVELS[-1])  # the reach's most: its progress is 1
     assert reward[-1] == 1.0 and reward[-2] < 7.0 / 8.0
 
 
