@@ -229,8 +229,8 @@ class Runner(TrainingRun, OnPolicyRunner):
         """The override to try first against a collapse: the noise learned as a log (on AllegroHand no action's noise
         collapsed with it in two seeds), or, for a policy that has it already, a floor."""
         std_type = (self.cfg["actor"].get("distribution_cfg") or {}).get("std_type", "scalar")  # actor: checked
-        if std_type == "log":
-            return "+train.actor.distribution_cfg.std_range=[0.1,10.0]"
+        if std_type == "log":  # ++: Hydra's add-or-override, right whether the recipe holds the key or not
+            return "++train.actor.distribution_cfg.std_range=[0.1,10.0]"
         return "train.actor.distribution_cfg.std_type=log"
 
     def _notice_noise_collapse(self, record: dict) -> None:
@@ -264,7 +264,7 @@ def check_network_sizes(runner: Runner, state: dict, checkpoint: Path) -> None:
     if "critic_state_dict" in state and shared["mine"] != shared["saved"]:
         raise ConfigError(f"checkpoint='{checkpoint}' was trained with train.algorithm.share_trunk={shared['saved']}, "
                           f"this run builds share_trunk={shared['mine']}: give "
-                          f"+train.algorithm.share_trunk={shared['saved']}")
+                          f"++train.algorithm.share_trunk={shared['saved']}")  # ++: the recipe may hold it
     for part in ("actor", "critic"):
         mine, saved = built.get(f"{part}_state_dict", {}), state.get(f"{part}_state_dict", {})
         for name, tensor in saved.items():

@@ -185,8 +185,14 @@ def test_cartpole_trains_with_a_shared_trunk_and_exports_it(make_cartpole, tmp_p
     state = torch.load(path, weights_only=False)
     with pytest.raises(ConfigError, match=r"^checkpoint='.*model\.pt' was trained with train\.algorithm\.share_trunk="
                                           r"True, this run builds share_trunk=False: give "
-                                          r"\+train\.algorithm\.share_trunk=True$"):
+                                          r"\+\+train\.algorithm\.share_trunk=True$") as refused:
         check_network_sizes(runner(), state, path)
+    # The override it names composes whether the recipe holds the key (AllegroHand's shares its trunk) or not
+    # (Cartpole's): a single + fails on a recipe that holds it.
+    hint = str(refused.value).rsplit(" ", 1)[-1]
+    for task, held in (("Cartpole", False), ("AllegroHand", True)):
+        assert ("share_trunk" in compose_config([f"task={task}"]).train.algorithm) == held
+        assert compose_config([f"task={task}", hint]).train.algorithm.share_trunk is True
 
 
 def test_the_value_head_sits_on_the_last_hidden_layer():

@@ -254,7 +254,7 @@ def test_the_history_records_the_action_noise_the_checkpoint_holds(tmp_path, run
 
 
 @pytest.mark.parametrize("std_type, lever", [("scalar", "train.actor.distribution_cfg.std_type=log"),
-                                             ("log", "+train.actor.distribution_cfg.std_range=[0.1,10.0]")])
+                                             ("log", "++train.actor.distribution_cfg.std_range=[0.1,10.0]")])
 def test_a_collapsed_action_noise_is_reported_once_by_its_actuator_name(tmp_path, run_args, capsys, std_type, lever):
     import mujoco
 
