@@ -136,3 +136,17 @@ def test_from_a_grasped_start_a_scripted_carry_and_release_stacks_paying_every_l
     assert done and stage == "stacked" and reward == 1.0
     assert first_reached == STAGE_NAMES[1:]  # held from the first step: reach is never the furthest stage
     assert env.metrics.recorded(OUTCOME)["success"].tolist() == [1.0]
+    assert env.metrics.recorded(OUTCOME)["furthest_stage"].tolist() == [float(STAGE_NAMES.index("stacked"))]
+
+
+def test_test_mode_reports_each_episodes_furthest_stage():
+    """eval.json's furthest_stage: from A in the hand with the gripper let open (action 0 opens, IGE's rule) every
+    episode's furthest stage is the grasp (A held at the first step, dropped after); from IGE's resets, with the hand
+    away from A, the reach."""
+    from isaacgymenvs_mw.learning.evaluation import evaluate
+
+    for fraction, furthest in ((1.0, "grasp"), (0.0, "reach")):
+        env = make("FrankaCubeStack", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True, seed=0,
+                   overrides=[f"task.env.graspedResetFraction={fraction}", "task.env.episodeLength_s=0.25"])
+        result = evaluate(env, lambda obs: torch.zeros(2, env.num_actions), "cpu")
+        assert result["furthest_stage"] == float(STAGE_NAMES.index(furthest)), (fraction, result)
