@@ -12,6 +12,8 @@
 #   DRY_RUN_OVERRIDES="sim_device=cpu rl_device=cpu num_envs=8 max_iterations=2" \
 #     bash benchmarks/gpu_train_eval.sh OUT 60 "NAME 0 TASK SEED [overrides...]" ...
 # (a dry run also keeps the machine's compile caches).
+# COPY_BEST=1 also copies each job's best checkpoint to OUT_DIR/<NAME>.model_best.pt, to study the policy or record a
+# clip of it elsewhere (test mode on the CPU takes it as checkpoint=...).
 set -u
 out=$1; seconds=$2; shift 2
 mkdir -p "$out"
@@ -39,6 +41,7 @@ for spec in "$@"; do
       eval_json=$(ls -t "$run_dir"/eval*.json | head -1)
       cp "$eval_json" "$out/$name.eval_$which.json"
     done
+    if [ "${COPY_BEST:-0}" = 1 ] && [ -f "$run_dir/model_best.pt" ]; then cp "$run_dir/model_best.pt" "$out/$name.model_best.pt"; fi
     touch "$out/$name.done"
   ) &
 done
