@@ -92,8 +92,9 @@ FURTHEST_STAGE_OF_EACH = Metric("furthest_stage", OUTCOME)
 
 
 class FrankaCubeStack(VecTask):
-    """Observation: cube A's orientation and position, B - A, the grasp frame's position and orientation, and the
-    joint positions (all 9 in the joint modes). Actions (8): 7 arm commands and the gripper."""
+    """Observation: cube A's orientation and position, B - A, the grasp frame's position and orientation, then the
+    two finger positions (osc, the default) or all 9 joint positions (the joint modes). Actions: a pose error of the
+    grasp frame (6, osc) or 7 arm commands (the joint modes), then the gripper."""
 
     reports_success = True
 
