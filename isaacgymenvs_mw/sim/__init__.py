@@ -47,7 +47,7 @@ from isaacgymenvs_mw.sim.sensors import (
     sensor_specs,
 )
 from isaacgymenvs_mw.sim.simulator import Simulator
-from isaacgymenvs_mw.sim.velocity_limit import free_joint_speed_limits
+from isaacgymenvs_mw.sim.velocity_limit import free_joint_damping, free_joint_speed_limits
 from isaacgymenvs_mw.sim.terrain import (
     TERRAIN_TYPES,
     Terrain,
@@ -77,6 +77,7 @@ __all__ = [
     "sim_dt",
     "solver_options",
     "torque_speed_limits",
+    "free_joint_damping",
     "free_joint_speed_limits",
     "GroundPlane",
     "InertiaConstants",

@@ -37,6 +37,7 @@ class SceneAsset:
     keep_asset_contacts: bool = False
     spec: mujoco.MjSpec | None = None  # the parsed file (sim/request.py parses it once); None: parse asset_file
     max_angular_velocity: float | None = None  # rad/s cap on its free body's angular speed (sim/velocity_limit.py)
+    damping: tuple[float, float] = (0.0, 0.0)  # its free body's (linear, angular) velocity damping, 1/s (likewise)
 
 
 def load_spec(asset_file: Path, collapse_fixed_joints: bool = True, key: str = "env.asset") -> mujoco.MjSpec:

@@ -92,6 +92,15 @@ class ModelRequest:
     torque_speed: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
     # rad/s cap on the angular speed of the main asset's free bodies (env.asset.maxAngularVelocity; None: none)
     max_angular_velocity: float | None = None
+    # (linear, angular) velocity damping of the main asset's free bodies, 1/s (env.asset.linearDamping, angularDamping)
+    damping: tuple[float, float] = (0.0, 0.0)
+
+    def free_body_damping(self) -> dict[str, tuple[float, float]]:
+        """{asset name prefix ('' for the main asset): (linear, angular)} of the assets that damp their free bodies'
+        velocity (``sim.velocity_limit.free_joint_damping`` finds their joints in the compiled model)."""
+        out = {"": self.damping} if any(self.damping) else {}
+        out.update({a.prefix: a.damping for a in self.assets if any(a.damping)})
+        return out
 
     def angular_speed_caps(self) -> dict[str, float]:
         """{asset name prefix ('' for the main asset): rad/s} of the assets that cap their free bodies' angular

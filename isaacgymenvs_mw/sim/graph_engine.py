@@ -134,7 +134,7 @@ class GraphEngine:
         """Advance every world by ``substeps`` physics steps."""
 
         limiter = self.torque_speed
-        speed_cap = self.angular_speed_limit
+        free_bodies = self.free_body_velocity  # damping and angular speed cap (sim/velocity_limit.py)
         forces = self.body_forces if self.body_forces is not None and self.body_forces.active else None
         pose = forces is not None and forces.needs_kinematics
 
@@ -149,8 +149,8 @@ class GraphEngine:
                 if forces is not None:
                     forces.launch()
                 mjw.step(self.model, self.data)
-                if speed_cap is not None:
-                    speed_cap.launch()
+                if free_bodies is not None:
+                    free_bodies.launch()
             if forces is not None:
                 forces.end_step()
 

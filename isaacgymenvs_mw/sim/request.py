@@ -51,7 +51,7 @@ SIM_KEYS = ("dt", "gravity", "integrator", "solver", "cone", "iterations", "ls_i
 # Keys of one env.assets entry (docs/config.md, "Scenes of several assets").
 # No collapseFixedJoints: MuJoCo's fusestatic is one compiler flag for the whole model, env.asset's.
 SCENE_ASSET_KEYS = ("assetRoot", "assetFileName", "pos", "rot", "fixBaseLink", "prefix", "keepAssetContacts",
-                    "maxAngularVelocity")
+                    "maxAngularVelocity", "linearDamping", "angularDamping")
 
 TorqueSpeed = dict[str, tuple[float, float, float]]
 
@@ -109,6 +109,7 @@ def request_from_config(env: Mapping, sim: Mapping, yaml_dir: str | None, assets
         stability_probe=stability_probe(sim),
         torque_speed=torque_speed,
         max_angular_velocity=max_angular_velocity(asset, "env.asset"),
+        damping=body_damping(asset, "env.asset"),
     )
 
 
@@ -119,6 +120,13 @@ def max_angular_velocity(asset: Mapping, key: str) -> float | None:
     if value is None:
         return None
     return real_number(value, f"{key}.maxAngularVelocity", low=0.0, low_open=True)
+
+
+def body_damping(asset: Mapping, key: str) -> tuple[float, float]:
+    """``<key>.linearDamping`` and ``angularDamping``: IsaacGym's ``linear_damping`` and ``angular_damping`` (1/s,
+    >= 0) for the asset's free bodies; absent or null: 0 (MuJoCo's own behaviour; IsaacGym's defaults are 0 and 0.5)."""
+    return tuple(0.0 if asset.get(name) is None else real_number(asset.get(name), f"{key}.{name}", low=0.0)
+                 for name in ("linearDamping", "angularDamping"))
 
 
 CONDIMS = (1, 3, 4, 6)
@@ -202,6 +210,7 @@ def scene_assets(cfg: Mapping | None, yaml_dir: str | None, assets_dir: Path,
             keep_asset_contacts=bool(entry.get("keepAssetContacts", is_mjcf(path))),
             spec=load_spec(path, collapse_fixed_joints, key),
             max_angular_velocity=max_angular_velocity(entry, key),
+            damping=body_damping(entry, key),
         ))
     return tuple(out)
 

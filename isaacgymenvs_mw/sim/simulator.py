@@ -18,7 +18,7 @@ import warp as wp
 import mujoco_warp as mjw
 from isaacgymenvs_mw.sim.actuators import TorqueSpeedLimit
 from isaacgymenvs_mw.sim.cameras import CameraSpec
-from isaacgymenvs_mw.sim.velocity_limit import AngularSpeedLimit
+from isaacgymenvs_mw.sim.velocity_limit import FreeBodyVelocity
 from isaacgymenvs_mw.sim.forces import BodyForceRequests, BodyForces
 from isaacgymenvs_mw.sim.graph_engine import GraphEngine
 from isaacgymenvs_mw.sim.kernels import init_warp
@@ -84,6 +84,7 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         declared_sensors: Sequence[Sensor] = (),
         torque_speed: Mapping[str, tuple[float, float, float]] | None = None,
         angular_speed_limits: Mapping[int, float] | None = None,
+        free_body_damping: Mapping[int, tuple[float, float]] | None = None,
     ) -> None:
         if substeps < 1:
             raise ConfigError(f"controlFrequencyInv must be >= 1, got {substeps}")
@@ -121,10 +122,12 @@ class Simulator(TensorViews, GraphEngine, WorldState, Lookups, BodyForceRequests
         self._overflow_seen = torch.zeros(self.num_worlds, dtype=torch.int32, device=self.device)
         self.torque_speed: TorqueSpeedLimit | None = self._torque_speed_limit(torque_speed) if torque_speed else None
         self.body_forces: BodyForces | None = None  # made by the first apply_body_forces
-        # {free joint index: rad/s}: IsaacGym's max_angular_velocity, capped after every physics step (sim/velocity_limit.py)
-        self.angular_speed_limit: AngularSpeedLimit | None = (
-            AngularSpeedLimit(mj_model, self.data, self.num_worlds, angular_speed_limits) if angular_speed_limits
-            else None)
+        # IsaacGym's velocity rules for free bodies, applied after every physics step (sim/velocity_limit.py):
+        # angular_speed_limits {free joint index: rad/s} (max_angular_velocity), free_body_damping {free joint index:
+        # (linear, angular)} (linear_damping, angular_damping)
+        self.free_body_velocity: FreeBodyVelocity | None = (
+            FreeBodyVelocity(mj_model, self.data, self.num_worlds, angular_speed_limits or {}, free_body_damping or {})
+            if angular_speed_limits or free_body_damping else None)
         self._body_id_cache: dict[tuple, torch.Tensor] = {}
         # {body of the asset file: the body collapseFixedJoints merged it into}, for the error naming one (lookups)
         self.fused_bodies: dict[str, str] = {}

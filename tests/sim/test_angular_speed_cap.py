@@ -51,7 +51,7 @@ def test_a_free_body_spins_no_faster_than_its_cap_as_mujoco_c_with_the_cap_appli
 def test_without_a_cap_the_body_keeps_its_speed():
     model = mujoco.MjModel.from_xml_string(XML)
     sim = Simulator(model, 2, "cpu", substeps=SUBSTEPS, angular_speed_limits=free_joint_speed_limits(model, {}))
-    assert sim.angular_speed_limit is None
+    assert sim.free_body_velocity is None
     sim.qvel.copy_(torch.tensor(QVEL0, dtype=torch.float32))
     sim.simulate()
     assert np.linalg.norm(sim.qvel[0, 3:6].numpy()) > LIMIT
@@ -70,6 +70,6 @@ def test_the_cap_reaches_the_task_from_its_yaml():
     # Quadcopter's craft is a floating main asset: the YAML key caps its free joint.
     task = isaacgymenvs_mw.make("Quadcopter", num_envs=2, sim_device="cpu", rl_device="cpu",
                                 overrides=["+task.env.asset.maxAngularVelocity=7.5"])
-    cap = task.sim.angular_speed_limit
+    cap = task.sim.free_body_velocity
     assert cap is not None and len(cap.joints) == 1
     assert int(task.sim.mj_model.jnt_type[cap.joints[0]]) == int(mujoco.mjtJoint.mjJNT_FREE)

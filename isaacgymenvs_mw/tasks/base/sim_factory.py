@@ -9,7 +9,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from isaacgymenvs_mw.sim import ModelRequest, Simulator, build_model, free_joint_speed_limits, request_from_config
+from isaacgymenvs_mw.sim import (
+    ModelRequest,
+    Simulator,
+    build_model,
+    free_joint_damping,
+    free_joint_speed_limits,
+    request_from_config,
+)
 
 ASSETS_DIR = Path(__file__).resolve().parents[3] / "assets"
 
@@ -40,6 +47,7 @@ def build_simulator(cfg: Mapping, request: ModelRequest, num_envs: int, device: 
         declared_sensors=request.all_sensors(),
         torque_speed=request.torque_speed,
         angular_speed_limits=free_joint_speed_limits(model, request.angular_speed_caps()),
+        free_body_damping=free_joint_damping(model, request.free_body_damping()),
     )
     if request.collapse_fixed_joints:
         simulator.fused_bodies = fused_bodies(request, simulator.body_names)
