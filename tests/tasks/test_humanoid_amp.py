@@ -10,9 +10,9 @@ import pytest
 import torch
 
 import isaacgymenvs_mw
-from isaacgymenvs_mw.tasks.amp.observations import humanoid_observation
+from isaacgymenvs_mw.tasks.amp.observations import dof_to_obs, humanoid_observation, tan_norm, xyz_euler_to_quat
 from isaacgymenvs_mw.utils.errors import ConfigError
-from isaacgymenvs_mw.utils.rotations import quat_rotate
+from isaacgymenvs_mw.utils.rotations import quat_about_axis, quat_mul, quat_rotate, yaw_from_quat
 
 ASSET = Path(__file__).resolve().parents[2] / "assets" / "mjcf" / "amp_humanoid.xml"
 
@@ -156,3 +156,72 @@ def test_bad_state_init_names_the_key():
     with pytest.raises(ConfigError, match=r"env\.stateInit"):
         isaacgymenvs_mw.make(task="HumanoidAMP", num_envs=1, sim_device="cpu", rl_device="cpu", headless=True,
                              overrides=["task.env.stateInit=Sometimes"])
+
+
+# The humanoid's joints in dof order (assets/mjcf/amp_humanoid.xml): 3 hinges x-y-z, or one (elbows, knees).
+GROUP_SIZES = [3, 3, 3, 1, 3, 1, 3, 1, 3, 3, 1, 3]
+
+
+def _axis(n: int, i: int) -> torch.Tensor:
+    v = torch.zeros(n, 3)
+    v[:, i] = 1.0
+    return v
+
+
+def _reference_joint_quat(a: torch.Tensor) -> torch.Tensor:
+    """Rx(a0) Ry(a1) Rz(a2) as the full Hamilton products of the three axis rotations."""
+    return quat_mul(quat_mul(quat_about_axis(a[:, 0], 0), quat_about_axis(a[:, 1], 1)), quat_about_axis(a[:, 2], 2))
+
+
+def _reference_dof_obs(dof_pos: torch.Tensor, sizes: list[int]) -> torch.Tensor:
+    """One joint at a time: the rotated x and z axes of each 3-hinge joint, the angle of a 1-hinge one."""
+    n, cols, i = dof_pos.shape[0], [], 0
+    for size in sizes:
+        if size == 3:
+            q = _reference_joint_quat(dof_pos[:, i:i + 3])
+            cols += [quat_rotate(q, _axis(n, 0)), quat_rotate(q, _axis(n, 2))]
+        else:
+            cols.append(dof_pos[:, i:i + 1])
+        i += size
+    return torch.cat(cols, dim=-1)
+
+
+def _random_angles(n: int, cols: int, gen: torch.Generator) -> torch.Tensor:
+    a = (torch.rand(n, cols, generator=gen) - 0.5) * 4 * torch.pi
+    a[: n // 8] = 0.0  # a joint at rest: the products' zero terms meet exact zeros
+    a[n // 8: n // 4] = torch.pi
+    return a
+
+
+@pytest.mark.parametrize("n", [1, 5, 64])
+def test_batched_joint_rotations_equal_the_products_one_joint_at_a_time(n):
+    """The written-out Rx Ry Rz, the batched tan_norm and the batched dof_to_obs round as the full quaternion
+    products of one joint at a time do (the dropped terms are products with exact zeros): equal, not close."""
+    gen = torch.Generator().manual_seed(n)
+    angles = _random_angles(n, 3, gen)
+    assert torch.equal(xyz_euler_to_quat(angles), _reference_joint_quat(angles))
+    q = torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1)
+    assert torch.equal(tan_norm(q), torch.cat((quat_rotate(q, _axis(n, 0)), quat_rotate(q, _axis(n, 2))), dim=-1))
+    for sizes in (GROUP_SIZES, [1, 3, 1], [1, 1]):
+        dof_pos = _random_angles(n, sum(sizes), gen)
+        assert torch.equal(dof_to_obs(dof_pos, sizes), _reference_dof_obs(dof_pos, sizes))
+
+
+@pytest.mark.parametrize("local_root_obs", [False, True])
+def test_humanoid_observation_equals_its_columns_computed_one_by_one(local_root_obs):
+    n, k = 6, 4
+    gen = torch.Generator().manual_seed(1)
+    root_pos, root_vel, ang_vel = (torch.randn(n, 3, generator=gen) for _ in range(3))
+    root_rot = torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1)
+    dof_pos, dof_vel = _random_angles(n, 28, gen), torch.randn(n, 28, generator=gen)
+    key_pos = torch.randn(n, k, 3, generator=gen)
+    heading = quat_about_axis(-yaw_from_quat(root_rot), 2)
+    rot = quat_mul(heading, root_rot) if local_root_obs else root_rot
+    keys = [quat_rotate(heading, key_pos[:, j] - root_pos) for j in range(k)]
+    want = torch.cat([root_pos[:, 2:3], quat_rotate(rot, _axis(n, 0)), quat_rotate(rot, _axis(n, 2)),
+                      quat_rotate(heading, root_vel), quat_rotate(heading, ang_vel),
+                      _reference_dof_obs(dof_pos, GROUP_SIZES), dof_vel, *keys], dim=-1)
+    got = humanoid_observation(root_pos, root_rot, root_vel, ang_vel, dof_pos, dof_vel, key_pos, GROUP_SIZES,
+                               local_root_obs)
+    assert got.shape == (n, 105)
+    assert torch.equal(got, want)
