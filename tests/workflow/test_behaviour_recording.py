@@ -60,9 +60,11 @@ SHORT_EPISODES = {"legged": ["task.env.episodeLength_s=0.6"], "Ant": ["task.env.
 
 
 # The recording's defaults that later defaults replaced: FrankaCubeStack's reward became the staged one (issue 58), and
-# a share of its resets start with cube A in the hand and its control became osc (issue 68).
+# a share of its resets start with cube A in the hand and its control became osc (issue 68); BallBalance's ball is
+# damped as IsaacGym damps it (issue 69).
 FORMER_DEFAULTS = {"FrankaCubeStack": ["task.env.reward.kind=isaacgymenvs", "task.env.graspedResetFraction=0",
-                                       "task.env.controlType=joint_pos"]}
+                                       "task.env.controlType=joint_pos"],
+                   "BallBalance": ["task.env.assets.ball.angularDamping=0"]}
 # Where the recorded reward's factor moved from the task (env.rewardScale) to the learner recipe (issue 70): the
 # recording holds the reward the learner sees, the task's times the recipe's reward_scale.
 RECIPE_SCALED = ("Ant", "Humanoid", "FrankaCabinet", "AllegroHand")
