@@ -79,11 +79,16 @@ def test_a_bad_damping_is_one_line_naming_the_key(name, value):
 def test_the_damping_reaches_the_task_from_its_yaml():
     import isaacgymenvs_mw
 
-    # BallBalance's ball is an env.assets entry with a free joint: the YAML key damps it, and only it.
-    task = isaacgymenvs_mw.make("BallBalance", num_envs=2, sim_device="cpu", rl_device="cpu",
-                                overrides=["+task.env.assets.ball.angularDamping=0.5"])
+    # BallBalance's YAML damps its ball (an env.assets entry with a free joint), and only it: the tray, the main
+    # asset's free body, is not damped; with the key at 0 nothing is.
+    task = isaacgymenvs_mw.make("BallBalance", num_envs=2, sim_device="cpu", rl_device="cpu")
     rules = task.sim.free_body_velocity
     assert rules is not None and len(rules.joints) == 1
     joint = rules.joints[0]
     assert int(task.sim.mj_model.jnt_type[joint]) == int(mujoco.mjtJoint.mjJNT_FREE)
     assert task.sim.mj_model.body(int(task.sim.mj_model.jnt_bodyid[joint])).name.startswith("ball")
+    free = [j for j in range(task.sim.mj_model.njnt) if task.sim.mj_model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    assert len(free) == 2  # the tray's and the ball's
+    undamped = isaacgymenvs_mw.make("BallBalance", num_envs=2, sim_device="cpu", rl_device="cpu",
+                                    overrides=["task.env.assets.ball.angularDamping=0"])
+    assert undamped.sim.free_body_velocity is None
