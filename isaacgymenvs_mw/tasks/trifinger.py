@@ -67,6 +67,11 @@ CONSECUTIVE_SUCCESSES = Metric("consecutive_successes", EPISODE_SUM, success=Tru
 SUCCESSES_POS = Metric("consecutive_successes_pos", EPISODE_SUM)
 SUCCESSES_QUAT = Metric("consecutive_successes_quat", EPISODE_SUM)
 EPISODE_SUCCESS = Metric("consecutive_successes", OUTCOME, success=True)
+# Test mode's view of how near the cube ends when it misses: its distance (m) and angle (rad) to the goal at each
+# episode's last step, and whether its position alone is within the tolerance.
+EPISODE_SUCCESS_POS = Metric("consecutive_successes_pos", OUTCOME)
+FINAL_GOAL_DISTANCE = Metric("final_goal_distance", OUTCOME)
+FINAL_GOAL_ANGLE = Metric("final_goal_angle", OUTCOME)
 
 
 class Trifinger(VecTask):
@@ -115,6 +120,8 @@ class Trifinger(VecTask):
         self.goal_quat[:, 0] = 1.0
         self.prev_tip_pos = torch.zeros((n, 3, 3), device=dev)
         self.prev_object_pos = torch.zeros((n, 3), device=dev)
+        self.goal_distance = torch.zeros(n, device=dev)  # the cube's to the goal: position (m), orientation (rad)
+        self.goal_angle = torch.zeros(n, device=dev)
         self.success_pos = torch.zeros(n, dtype=torch.bool, device=dev)
         self.success_quat = torch.zeros(n, dtype=torch.bool, device=dev)
         self.success = torch.zeros(n, dtype=torch.bool, device=dev)
@@ -147,8 +154,10 @@ class Trifinger(VecTask):
         self.tip_pos = self.sim.xpos[:, self.tip_ids]
         self.object_pos, self.object_quat = self.cube.root_pos, self.cube.root_quat
         tol = self.settings["success"]
-        self.success_pos.copy_(torch.linalg.norm(self.goal_pos - self.object_pos, dim=-1) <= tol["position_tolerance"])
-        self.success_quat.copy_(rotation_distance(self.object_quat, self.goal_quat) <= tol["orientation_tolerance"])
+        self.goal_distance.copy_(torch.linalg.norm(self.goal_pos - self.object_pos, dim=-1))
+        self.goal_angle.copy_(rotation_distance(self.object_quat, self.goal_quat))
+        self.success_pos.copy_(self.goal_distance <= tol["position_tolerance"])
+        self.success_quat.copy_(self.goal_angle <= tol["orientation_tolerance"])
         difficulty = self.settings["task_difficulty"]
         self.success.copy_(self.success_pos & self.success_quat if difficulty == 4 else self.success_pos)
 
@@ -176,7 +185,8 @@ class Trifinger(VecTask):
         return self.control_dt * keypoints_kernel(self.object_pos, self.object_quat, self.goal_pos, self.goal_quat)
 
     def declared_metrics(self) -> list[Metric]:
-        return [*super().declared_metrics(), CONSECUTIVE_SUCCESSES, SUCCESSES_POS, SUCCESSES_QUAT, EPISODE_SUCCESS]
+        return [*super().declared_metrics(), CONSECUTIVE_SUCCESSES, SUCCESSES_POS, SUCCESSES_QUAT, EPISODE_SUCCESS,
+                EPISODE_SUCCESS_POS, FINAL_GOAL_DISTANCE, FINAL_GOAL_ANGLE]
 
     # ------------------------------------------------------------------ observation
     def observation_terms(self) -> list[ObsTerm]:
@@ -223,6 +233,9 @@ class Trifinger(VecTask):
         self.metrics.record(SUCCESSES_POS, (self.success_pos & mask).float().sum())
         self.metrics.record(SUCCESSES_QUAT, (self.success_quat & mask).float().sum())
         self.metrics.record(EPISODE_SUCCESS, ended.float())
+        self.metrics.record(EPISODE_SUCCESS_POS, (self.success_pos & mask).float())
+        self.metrics.record(FINAL_GOAL_DISTANCE, torch.where(mask, self.goal_distance, 0.0))
+        self.metrics.record(FINAL_GOAL_ANGLE, torch.where(mask, self.goal_angle, 0.0))
         zero3 = torch.zeros((n, 3), device=dev)
         # New states first ("none" keeps the current one), then the reset of every carried quantity, then the writes.
         robot = self.settings["robot_initial_state"]

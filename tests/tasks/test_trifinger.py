@@ -227,6 +227,27 @@ def test_episodes_last_750_steps_and_report_success_at_their_end(env):
     assert env.metrics.recorded("episode_sum")["consecutive_successes"].item() == 1.0
 
 
+def test_test_mode_outcomes_are_the_cube_to_goal_distance_and_angle_at_the_episode_end(env):
+    env.reset()
+    cube_pos, cube_quat = place(env)
+    goal_quat = env.goal_quat[0].tolist()  # before the reset draws a new goal
+    env.reset_idx(torch.tensor([True, False]))  # only cube 0's episode ends
+    outcome = env.metrics.recorded("outcome")
+    gap = float(np.linalg.norm(np.array([0.03, 0.0, 0.07]) - cube_pos[0].numpy()))
+    assert outcome["final_goal_distance"].tolist() == pytest.approx([gap, 0.0], abs=1e-6)
+    r = rotmat(goal_quat).T @ rotmat(cube_quat[0].tolist())  # the goal is upright: 0.3 rad about z
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))
+    assert outcome["final_goal_angle"].tolist() == pytest.approx([angle, 0.0], abs=1e-4)
+    assert angle == pytest.approx(0.3, abs=1e-4)
+    assert outcome["consecutive_successes_pos"].tolist() == [0.0, 0.0]  # 4 cm is outside 2 cm; cube 1 did not end
+    env.reset_idx(torch.tensor([False, True]))  # cube 1 sits at its goal position, turned away
+    place(env)
+    env.reset_idx(torch.tensor([False, True]))
+    outcome = env.metrics.recorded("outcome")
+    assert outcome["consecutive_successes_pos"].tolist() == [0.0, 1.0]
+    assert outcome["consecutive_successes"].tolist() == [0.0, 0.0]
+
+
 def test_resets_place_robot_cube_and_goal_as_ige(env):
     mask = torch.ones(2, dtype=torch.bool)
     cubes, goals = [], []
@@ -274,7 +295,8 @@ def test_train_py_trains_two_iterations_and_test_mode_evaluates(tmp_path):
     summary, result = train_py_two_iterations_then_test("Trifinger", tmp_path, 8, ("task.env.episodeLength_s=0.2",))
     assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 8 * 8
     assert result["episodes"] == 8
-    assert 0.0 <= result["consecutive_successes"] <= 1.0
+    assert 0.0 <= result["consecutive_successes"] <= result["consecutive_successes_pos"] <= 1.0
+    assert 0.0 < result["final_goal_distance"] < 0.5 and 0.0 <= result["final_goal_angle"] <= math.pi
 
 
 def tip_jacobian_policy(env, targets: np.ndarray, kp: float = 60.0, kd: float = 1.0) -> torch.Tensor:
