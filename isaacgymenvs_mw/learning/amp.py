@@ -239,6 +239,10 @@ class AMPVecEnv:
         self.info["d_policy"].copy_(parts["d_policy"])
         self.info["d_motion"].copy_(parts["d_motion"])
 
+    def test_mode_scores(self) -> AMPScores:
+        """Test mode's measure of the imitation (``AMPScores``), with this wrapper's discriminator."""
+        return AMPScores(self)
+
     def state_dict(self) -> dict[str, Any]:
         """What a checkpoint needs to resume the discriminator."""
         return {"disc": self.disc.state_dict(), "optimizer": self.optimizer.state_dict(),
@@ -249,6 +253,44 @@ class AMPVecEnv:
         self.optimizer.load_state_dict(state["optimizer"])
         for mine, saved in zip((self.norm.mean, self.norm.var, self.norm.count), state["norm"]):
             mine.copy_(saved)
+
+
+class AMPScores:
+    """How close the policy's motion is to the motion library's, as the trained discriminator sees it: its mean logit
+    and style reward over the policy's transitions in each env's first episode (test mode's deterministic policy),
+    and over as many transitions drawn from the motion library (at most ``MOTION_SAMPLES``). eval.json gets them as
+    ``amp_d_policy``, ``amp_d_motion``, ``amp_style_reward_policy`` and ``amp_style_reward_motion``: a policy the
+    discriminator cannot tell from the motions scores as the motions do."""
+
+    MOTION_SAMPLES = 65536
+
+    def __init__(self, wrapper: AMPVecEnv) -> None:
+        self.wrapper = wrapper
+        dev = wrapper.env.device
+        self.sums = {key: torch.zeros((), device=dev) for key in ("d", "style", "count")}
+
+    def _scores(self, amp_obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        cfg = self.wrapper.amp_cfg
+        d = self.wrapper.disc(self.wrapper.norm(amp_obs.to(self.wrapper.env.device)))
+        return d, style_reward(d, cfg.loss, cfg.disc_reward_scale)
+
+    def observe(self, active: torch.Tensor) -> None:
+        """After each test-mode step: score the transitions of the envs still in their first episode."""
+        with torch.no_grad():
+            d, style = self._scores(self.wrapper.env.task.amp_obs)
+            weight = active.to(d.device).float()
+            self.sums["d"] += (d * weight).sum()
+            self.sums["style"] += (style * weight).sum()
+            self.sums["count"] += weight.sum()
+
+    def result(self) -> dict[str, float]:
+        count = max(int(self.sums["count"]), 1)
+        with torch.no_grad():
+            motion = self.wrapper.env.task.fetch_amp_obs_demo(min(count, self.MOTION_SAMPLES))
+            d_motion, style_motion = self._scores(motion)
+        return {"amp_d_policy": float(self.sums["d"]) / count, "amp_d_motion": float(d_motion.mean()),
+                "amp_style_reward_policy": float(self.sums["style"]) / count,
+                "amp_style_reward_motion": float(style_motion.mean())}
 
 
 def with_amp(env: Any, train_cfg: dict) -> Any:

@@ -3,6 +3,8 @@ eval.json gets the per-episode means, the task's test-mode metrics and its per-g
 
 from __future__ import annotations
 
+from typing import Protocol, Sequence
+
 import torch
 
 from isaacgymenvs_mw.learning.training_run import keep_stop_handler
@@ -10,9 +12,18 @@ from isaacgymenvs_mw.learning.vecenv import RslRlVecEnv
 from isaacgymenvs_mw.tasks.base.metrics import OUTCOME, PER_STEP
 
 
-def evaluate(task, policy, device: str, reward_scale: float = 1.0) -> dict:
+class StepObserver(Protocol):
+    """What a learner feature measures in test mode beside the task (AMP's discriminator scores, learning/amp.py):
+    ``observe`` after each step, with the envs still in their first episode; ``result`` for eval.json."""
+
+    def observe(self, active: torch.Tensor) -> None: ...
+
+    def result(self) -> dict[str, float]: ...
+
+
+def evaluate(task, policy, device: str, reward_scale: float = 1.0, observers: Sequence[StepObserver] = ()) -> dict:
     """Run every env for one full episode with the deterministic policy; report per-episode means (the reward
-    times the recipe's ``reward_scale``, as training reports it).
+    times the recipe's ``reward_scale``, as training reports it), and what each of ``observers`` reports.
 
     Each env contributes its first episode, so the result is an unbiased sample of ``num_envs`` episodes from
     the task's reset distribution (commands too, for the legged tasks).
@@ -55,6 +66,8 @@ def evaluate(task, policy, device: str, reward_scale: float = 1.0) -> dict:
             for key, value in task.metrics.recorded(OUTCOME).items():
                 # per-env values of the episodes that ended in this step (a task's success flag)
                 outcomes[key] = torch.where(just_done, value, outcomes.get(key, torch.zeros(n, device=env.device)))
+            for observer in observers:
+                observer.observe(active)
             finished |= just_done
             if step % 50 == 0 and bool(finished.all()):
                 break
@@ -72,6 +85,8 @@ def evaluate(task, policy, device: str, reward_scale: float = 1.0) -> dict:
         out[key] = float((value / length.clamp(min=1)).mean())
     for key, value in outcomes.items():  # an episode still running at the cap counts 0
         out[key] = float(value.mean())
+    for observer in observers:
+        out.update(observer.result())
     for name, labels in groups.items():
         out[f"per_{name}"] = {}
         for label in sorted(set(labels.tolist())):

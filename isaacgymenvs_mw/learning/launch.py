@@ -65,7 +65,10 @@ def evaluate_checkpoint(cfg: DictConfig, task, runner: TrainingRun, checkpoint: 
     policy = runner.get_inference_policy(device=task.rl_device)
     onnx_path, jit_path = export_policy(runner, exported, task=task)
     print(f"[eval] policy exported to {onnx_path} and {jit_path}", flush=True)
-    result = evaluate(task, policy, task.rl_device, recipe_reward_scale(to_dict(cfg.train)))
+    # a learner feature's own test-mode measure (AMP: the discriminator's scores, learning/amp.py)
+    scores = getattr(getattr(runner, "env", None), "test_mode_scores", None)
+    observers = [scores()] if callable(scores) else []
+    result = evaluate(task, policy, task.rl_device, recipe_reward_scale(to_dict(cfg.train)), observers)
     result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
                   device=device_description(task.sim_device), versions=package_versions())
     write_json(eval_path, result)

@@ -130,6 +130,34 @@ def test_wrapper_mixes_rewards_and_trains_each_rollout():
     assert "AMP/disc_loss" in env.stats.pop()
 
 
+def test_test_mode_scores_average_the_first_episodes_and_the_motions():
+    """AMPScores: the discriminator's logit and style reward averaged over the transitions of envs still in their first
+    episode, and over motion samples; here D(x) = x0 + x1 + x2 - 1 for x >= 0, so the means are worked out by hand."""
+    train = {"runner": {"num_steps_per_env": 2},
+             "amp": {"hidden_dims": [4], "normalize_input": False, "loss": "bce", "disc_reward_scale": 2.0}}
+    env = with_amp(_Env(), train)
+    with torch.no_grad():
+        for layer in (env.disc.trunk[0], env.disc.logit):
+            layer.weight.zero_()
+            layer.bias.zero_()
+        env.disc.trunk[0].weight[0] = 1.0  # the first hidden unit sums the inputs
+        env.disc.logit.weight[0, 0] = 1.0
+        env.disc.logit.bias.fill_(-1.0)
+    scores = env.test_mode_scores()
+    env.task.amp_obs = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0]])
+    scores.observe(torch.tensor([True, True, True, True]))  # logits -1, 0, 1, 2
+    env.task.amp_obs = torch.full((4, 3), 0.5)
+    scores.observe(torch.tensor([False, True, False, False]))  # logit 0.5, env 1 only
+    got = scores.result()
+    logits = [-1.0, 0.0, 1.0, 2.0, 0.5]
+    reward = [-2.0 * math.log(max(1.0 - 1.0 / (1.0 + math.exp(-x)), 1e-4)) for x in logits]
+    assert got["amp_d_policy"] == pytest.approx(sum(logits) / 5)
+    assert got["amp_style_reward_policy"] == pytest.approx(sum(reward) / 5, rel=1e-6)
+    # the fake motion library returns ones: logit 2 for each of the 5 samples drawn
+    assert got["amp_d_motion"] == pytest.approx(2.0)
+    assert got["amp_style_reward_motion"] == pytest.approx(-2.0 * math.log(1.0 - 1.0 / (1.0 + math.exp(-2.0))))
+
+
 def test_bad_amp_settings_name_the_key():
     with pytest.raises(ConfigError, match=r"train\.amp\.loss"):
         with_amp(_Env(), {"runner": {"num_steps_per_env": 2}, "amp": {"loss": "wgan"}})
@@ -184,6 +212,9 @@ def test_train_py_switches_amp_on_from_the_train_yaml(tmp_path, run_args):
     result = run(compose_config(["task=HumanoidAMP", "num_envs=2", "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
                                  "task.env.episodeLength_s=0.5", *small, *run_args]))
     assert result["episodes"] == 2
+    # and its discriminator's scores on the policy's transitions and on the motions, in IGE's BCE reward's range
+    assert all(0.0 <= result[f"amp_style_reward_{who}"] <= 2.0 * math.log(1e4) for who in ("policy", "motion"))
+    assert math.isfinite(result["amp_d_policy"]) and math.isfinite(result["amp_d_motion"])
 
 
 def test_a_checkpoint_keeps_the_discriminator_and_a_resumed_run_gets_it_back(tmp_path):
