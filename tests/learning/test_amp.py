@@ -248,3 +248,27 @@ def test_a_checkpoint_keeps_the_discriminator_and_a_resumed_run_gets_it_back(tmp
         torch.testing.assert_close(a, b, rtol=0, atol=0)
     torch.testing.assert_close(fresh_env.norm.mean, trained_env.norm.mean, rtol=0, atol=0)
     assert fresh_env.optimizer.state_dict()["state"].keys() == trained_env.optimizer.state_dict()["state"].keys()
+
+
+def test_motion_match_diagnostic_statistics():
+    """benchmarks/diagnostics/amp_motion_match.py's per-group statistics, against numpy: a policy shifted by half a
+    unit in one group and twice as spread in the other."""
+    import sys
+    from pathlib import Path
+
+    import numpy as np
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks" / "diagnostics"))
+    from amp_motion_match import feature_match
+
+    torch.manual_seed(0)
+    motion = torch.randn(4000, 3, dtype=torch.float64)
+    policy = torch.cat((motion[:, :1] + 0.5, 2.0 * motion[:, 1:]), dim=1)
+    got = feature_match(policy, motion, [("shifted", 1), ("spread", 2)])
+    m = motion.numpy()
+    assert got["shifted"]["mean_gap_in_motion_std"] == pytest.approx(0.5 / np.std(m[:, 0], ddof=1), rel=1e-9)
+    assert got["shifted"]["median_std_ratio"] == pytest.approx(1.0, rel=1e-9)
+    gaps = np.abs(2.0 * m[:, 1:].mean(axis=0) - m[:, 1:].mean(axis=0)) / np.std(m[:, 1:], axis=0, ddof=1)
+    assert got["spread"]["mean_gap_in_motion_std"] == pytest.approx(gaps.mean(), rel=1e-9)
+    assert got["spread"]["median_std_ratio"] == pytest.approx(2.0, rel=1e-9)
+    assert got["spread"]["features"] == 2
