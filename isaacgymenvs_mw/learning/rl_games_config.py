@@ -48,7 +48,11 @@ REFUSED_KEYS = {
 _ALGOS = ("a2c_continuous",)
 _MODELS = ("continuous_a2c_logstd", "continuous_a2c")
 _NETWORKS = ("actor_critic",)
-_SCHEDULES = ("adaptive", "linear", None, "None", "identity")
+# rl_games keeps the rate fixed for any schedule but adaptive and linear; IsaacGymEnvs' YAMLs write constant or None
+_SCHEDULES = ("adaptive", "linear", "constant", None, "None", "identity")
+# Keys of an rl_games train YAML beside params: IsaacGymEnvs' TrifingerPPO.yaml states asymmetric_obs, which its
+# code never reads; here True is checked against the task (rl_games_runner.rl_games_params).
+TOP_KEYS = ("params", "asymmetric_obs")
 
 
 def is_rl_games_config(train_cfg: dict | DictConfig) -> bool:
@@ -70,9 +74,12 @@ def check_rl_games_config(train_cfg: dict) -> None:
     if unknown_sections:
         raise ConfigError(f"train.params.{unknown_sections[0]}: not an rl_games key this project reads (valid: "
                           f"{list(PARAMS_KEYS)})")
-    extra = sorted(set(train_cfg) - {"params"})
+    extra = sorted(set(train_cfg) - set(TOP_KEYS))
     if extra:
-        raise ConfigError(f"train.{extra[0]}: not a key of an rl_games train YAML (everything sits under params:)")
+        raise ConfigError(f"train.{extra[0]}: not a key of an rl_games train YAML (everything sits under params:, "
+                          "beside IsaacGymEnvs' asymmetric_obs)")
+    if not isinstance(train_cfg.get("asymmetric_obs", False), bool):
+        raise ConfigError(f"train.asymmetric_obs={train_cfg['asymmetric_obs']!r} is invalid: give True or False")
     _choice(params["algo"].get("name"), "train.params.algo.name", _ALGOS, "rl_games' PPO for continuous actions")
     _choice(params["model"].get("name"), "train.params.model.name", _MODELS, "a Gaussian policy over continuous "
             "actions")

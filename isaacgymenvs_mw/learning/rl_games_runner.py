@@ -50,6 +50,10 @@ def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
     if int(actors) != task.num_envs:
         raise ConfigError(f"train.params.config.num_actors={actors} differs from the task's {task.num_envs} envs: "
                           "write num_actors: ${....task.env.numEnvs}")
+    if train_cfg.get("asymmetric_obs") and task.num_states == 0:
+        raise ConfigError(f"train.asymmetric_obs=True, but task {cfg.task_name} gives its critic no state (numStates "
+                          "0): turn the task's asymmetric observations on (Trifinger: task.env.asymmetric_obs=True) "
+                          "or set train.asymmetric_obs=False")
     if task.observations.images is not None:
         raise ConfigError(f"task={cfg.task_name} observes camera images, which learner=rl_games does not feed to a "
                           "CNN here: train it with the rsl_rl learner")

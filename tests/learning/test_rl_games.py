@@ -165,7 +165,8 @@ def test_the_test_mode_policy_is_rl_games_deterministic_action():
 
 # reward_shaper.scale_value of IsaacGymEnvs' <Task>PPO.yaml (isaac-sim/IsaacGymEnvs isaacgymenvs/cfg/train): the factor
 # on IGE's reward that its rl_games learned from.
-IGE_REWARD_SCALE = {"AllegroHand": 0.01, "ShadowHand": 0.01, "Ant": 0.01, "Cartpole": 0.1, "FrankaCubeStack": 1.0}
+IGE_REWARD_SCALE = {"AllegroHand": 0.01, "ShadowHand": 0.01, "Ant": 0.01, "Cartpole": 0.1, "FrankaCubeStack": 1.0,
+                    "Trifinger": 0.01}
 
 
 @pytest.mark.parametrize("task", sorted(IGE_REWARD_SCALE))
@@ -248,3 +249,50 @@ def test_learner_rl_games_without_rl_games_installed_is_one_line(monkeypatch):
     cfg = compose_config(["learner=rl_games", "task=Cartpole", "sim_device=cpu", "rl_device=cpu"])
     with pytest.raises(ConfigError, match=r'^learner=rl_games .* not installed: pip install -e "\.\[rl-games\]"'):
         check_before_start(cfg)
+
+
+def test_isaacgymenvs_trifinger_yaml_trains_its_central_value_critic_on_the_privileged_state(tmp_path, run_args):
+    """IsaacGymEnvs' TrifingerPPO.yaml, unchanged (its top-level asymmetric_obs and lr_schedule: constant included):
+    the central value network reads the task's 113-value critic state, its own optimiser trains it (its weights move),
+    the checkpoint keeps it, and test mode evaluates the policy."""
+    args = ["task=Trifinger", "train=TrifingerPPO", "num_envs=8", *run_args]
+    summary = run(compose_config([*args, "max_iterations=2", "train.params.config.save_frequency=1"],
+                                 config_dir=IGE_CFG))
+    assert summary["iterations"] == 2
+    run_dir = _run_dir(tmp_path / "runs", "Trifinger")
+    first, second = (torch.load(run_dir / f"model_{i}.pt", weights_only=False) for i in (1, 2))
+    layers = [k for k, v in second["assymetric_vf_nets"].items() if k.endswith(".weight") and v.dim() == 2]
+    assert second["assymetric_vf_nets"][layers[0]].shape[1] == 113  # 41 observed + 72 privileged values
+    assert [second["assymetric_vf_nets"][k].shape[0] for k in layers] == [512, 512, 256, 128, 1]
+    assert not torch.equal(first["assymetric_vf_nets"][layers[0]], second["assymetric_vf_nets"][layers[0]])
+    result = run(compose_config([*args, "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
+                                 "task.env.episodeLength_s=0.1"], config_dir=IGE_CFG))
+    assert result["episodes"] == 8
+
+
+def test_shipped_rl_games_trifinger_recipe_is_isaacgymenvs_own():
+    """learner=rl_games task=Trifinger composes to IsaacGymEnvs' TrifingerPPO.yaml: every PPO and central value setting
+    the same, minibatches per env instead of num_actors (the same size), and only bookkeeping keys apart."""
+    from isaacgymenvs_mw.utils.config import to_dict
+
+    ours = to_dict(compose_config(["learner=rl_games", "task=Trifinger"]).train)
+    ige = to_dict(compose_config(["task=Trifinger", "train=TrifingerPPO"], config_dir=IGE_CFG).train)
+    assert ours["asymmetric_obs"] is ige["asymmetric_obs"] is True
+    assert ours["params"]["network"] == ige["params"]["network"]
+    bookkeeping = {"full_experiment_name", "score_to_win", "print_stats", "seq_len", "value_bootstrap", "player",
+                   "minibatch_size", "minibatch_size_per_env", "central_value_config", "multi_gpu"}
+    mine, theirs = ours["params"]["config"], ige["params"]["config"]
+    assert {k: v for k, v in mine.items() if k not in bookkeeping} == \
+        {k: v for k, v in theirs.items() if k not in bookkeeping}
+    assert mine["minibatch_size_per_env"] * 16384 == theirs["minibatch_size"]  # num_actors at the default envs
+    cv_mine, cv_theirs = mine["central_value_config"], theirs["central_value_config"]
+    assert cv_mine.pop("minibatch_size_per_env") * 16384 == cv_theirs.pop("minibatch_size")
+    assert cv_mine == cv_theirs
+
+
+def test_asymmetric_obs_of_an_rl_games_yaml_is_checked_against_the_task(tmp_path, run_args):
+    base = ["learner=rl_games", "task=Trifinger", "num_envs=2", "max_iterations=1", *run_args]
+    with pytest.raises(ConfigError, match=r"train\.asymmetric_obs=True, but task Trifinger gives its critic no state"):
+        run(compose_config([*base, "task.env.asymmetric_obs=False"]))
+    with pytest.raises(ConfigError, match=r"train\.asymmetric_obs='yes' is invalid: give True or False"):
+        run(compose_config([*base, "train.asymmetric_obs=yes"]))
