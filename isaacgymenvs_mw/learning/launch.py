@@ -69,8 +69,8 @@ def evaluate_checkpoint(cfg: DictConfig, task, runner: TrainingRun, checkpoint: 
     scores = getattr(getattr(runner, "env", None), "test_mode_scores", None)
     observers = [scores()] if callable(scores) else []
     result = evaluate(task, policy, task.rl_device, recipe_reward_scale(to_dict(cfg.train)), observers)
-    result.update(task=cfg.task_name, checkpoint=str(checkpoint), num_envs=task.num_envs,
-                  device=device_description(task.sim_device), versions=package_versions())
+    result.update(test_actions=runner.test_actions, task=cfg.task_name, checkpoint=str(checkpoint),
+                  num_envs=task.num_envs, device=device_description(task.sim_device), versions=package_versions())
     write_json(eval_path, result)
     print(f"[eval] {json.dumps({k: v for k, v in result.items() if k != 'versions'})}", flush=True)
     print(f"[eval] written to {eval_path}", flush=True)

@@ -23,7 +23,10 @@ LEARNER = "rl_games"  # the value of the run key `learner` and of a checkpoint's
 # - save_best_after: model_best.pt considers checkpoints from this iteration on (save_best=True)
 # - score_to_win:    end the run once the mean episode reward exceeds it
 # - mixed_precision: honoured on CUDA; on the CPU there is no autocast, so it is off
-# - player:          test mode always runs the deterministic policy, one episode per env (deterministic: True)
+# - player:          test mode runs one episode per env: the mean action (deterministic: True, the default) or a
+#                    sampled one (deterministic: False, as IsaacGymEnvs' AllegroKuka recipes evaluate)
+# - defer_summaries_sec, summaries_interval_sec_min / _max: rl_games' throttle of its TensorBoard writer; not used,
+#                    this project's writer takes the scalars once per iteration
 READ_KEYS = ("name", "full_experiment_name", "env_name", "num_actors", "device", "device_name", "multi_gpu",
              "max_epochs", "max_frames", "save_frequency", "save_best_after", "score_to_win", "mixed_precision",
              "player", "ppo", "normalize_input", "normalize_value", "normalize_advantage", "value_bootstrap",
@@ -32,7 +35,8 @@ READ_KEYS = ("name", "full_experiment_name", "env_name", "num_actors", "device",
              "minibatch_size", "minibatch_size_per_env", "mini_epochs", "critic_coef", "bounds_loss_coef",
              "bound_loss_type", "seq_len", "seq_length", "print_stats", "central_value_config", "use_smooth_clamp",
              "clip_actions", "weight_decay", "use_experimental_cv", "normalize_rms_advantage", "games_to_track",
-             "use_diagnostics", "schedule_entropy", "freeze_critic", "adv_rms_momentum")
+             "use_diagnostics", "schedule_entropy", "freeze_critic", "adv_rms_momentum", "defer_summaries_sec",
+             "summaries_interval_sec_min", "summaries_interval_sec_max")
 # Keys of train.params: the four sections, and what IsaacGymEnvs derives from run keys (checked against them).
 PARAMS_KEYS = ("algo", "model", "network", "config", "seed", "load_checkpoint", "load_path")
 # Keys whose meaning this runner cannot give, with why (a one-line error names them).
@@ -114,9 +118,9 @@ def check_rl_games_config(train_cfg: dict) -> None:
         raise ConfigError(f"train.params.config.env_name={config['env_name']!r} is invalid: the env is the task "
                           "(IsaacGymEnvs' YAMLs say rlgpu, the only value read)")
     player = config.get("player") or {}
-    if player.get("deterministic", True) is not True:
-        raise ConfigError("train.params.config.player.deterministic=False is not supported: test mode evaluates the "
-                          "mean action")
+    if not isinstance(player.get("deterministic", True), bool):
+        raise ConfigError(f"train.params.config.player.deterministic={player['deterministic']!r} is invalid: give "
+                          "True (test mode runs the mean action) or False (it samples the policy's actions)")
 
 
 def _choice(value: Any, key: str, valid: tuple, what: str) -> None:

@@ -189,6 +189,9 @@ class RlGamesRunner(TrainingRun):
         self._started = False
         self.init_training_run(LearnerGuard(self._learner_tensors), is_main=self.agent.global_rank == 0)
         self.best_after = int(config.get("save_best_after", 0) or 0)
+        # test mode's actions: the mean, or samples of the policy as IsaacGymEnvs' player draws them
+        self.test_actions = "mean" if (config.get("player") or {}).get("deterministic", True) else "sampled"
+        self.log_std_model = params["model"]["name"] == "continuous_a2c_logstd"
 
     def _learner_tensors(self) -> list[torch.Tensor]:
         """Every tensor that defines the learner: the model's parameters and buffers (normalisers included), a
@@ -316,7 +319,10 @@ class RlGamesRunner(TrainingRun):
             return module, torch.jit.trace(module, module.get_dummy_inputs())
 
     def get_inference_policy(self, device: str | None = None) -> Callable:
-        module = self.policy_module().to(device or self.device).eval()
+        """Test mode's policy: the mean action, or (``player.deterministic: False``) a sample of the policy's
+        Gaussian, clamped and mapped as the mean is (rl_games' player)."""
+        module = _RlGamesPolicy(self.agent, sample=self.test_actions == "sampled", log_std=self.log_std_model)
+        module = module.to(device or self.device).eval()
 
         def policy(obs) -> torch.Tensor:
             with torch.no_grad():
@@ -329,10 +335,13 @@ class _RlGamesPolicy(torch.nn.Module):
     """A trained rl_games agent's deterministic policy, copied out of it for test mode and export: its input
     normaliser ((x - mean) / sqrt(var + 1e-5), clamped to +-5, as rl_games' RunningMeanStd computes it; written out
     here because its TorchScript module cannot be traced as a submodule), its network's mean action, and rl_games'
-    action mapping (the mean clamped to [-1, 1], then onto the action space's bounds)."""
+    action mapping (the mean clamped to [-1, 1], then onto the action space's bounds). ``sample``: a draw from the
+    policy's Gaussian (std exp(log std) for ``continuous_a2c_logstd``, the network's sigma for ``continuous_a2c``) takes
+    the mean's place, as rl_games' player draws with ``deterministic: False``; for test mode only, never exported."""
 
-    def __init__(self, agent) -> None:
+    def __init__(self, agent, sample: bool = False, log_std: bool = True) -> None:
         super().__init__()
+        self.sample, self.log_std = sample, log_std
         model = agent.model
         self.network = copy.deepcopy(model.a2c_network)
         self.obs_shape = tuple(model.obs_shape)
@@ -349,7 +358,9 @@ class _RlGamesPolicy(torch.nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         if self.normalize:
             obs = ((obs - self.obs_mean) / self.obs_std).clamp(-5.0, 5.0)
-        mu = self.network({"obs": obs})[0]
+        mu, sigma = self.network({"obs": obs})[:2]
+        if self.sample:
+            mu = mu + (sigma.exp() if self.log_std else sigma) * torch.randn_like(mu)
         if not self.clip:
             return mu
         return self.low + (mu.clamp(-1.0, 1.0) + 1.0) * 0.5 * (self.high - self.low)
@@ -385,6 +396,13 @@ class RlGamesLearner(Learner):
         train_cfg = to_dict(self.cfg.train)
         check_train_config(train_cfg, self.cfg.get("learner"))
         self._max_epochs = int(train_cfg["params"]["config"].get("max_epochs", -1))
+        wanted = self.cfg.get("max_iterations", "")
+        if wanted not in ("", None) and int(wanted) != self._max_epochs:
+            # A YAML that writes max_epochs as a number (IsaacGymEnvs' AllegroKukaPPO: 100000) does not interpolate
+            # the run key; the command line's value wins, and rl_games' linear schedules count to it too.
+            print(f"[train] note: max_iterations={wanted} replaces train.params.config.max_epochs="
+                  f"{self._max_epochs}, which does not read it", flush=True)
+            self.cfg.train.params.config.max_epochs = self._max_epochs = int(wanted)
         if self._max_epochs < 0:
             raise ConfigError(f"train.params.config.max_epochs={self._max_epochs} is invalid: give the iterations to "
                               "train (or max_iterations=N on the command line)")

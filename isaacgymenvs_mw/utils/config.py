@@ -244,7 +244,7 @@ def boolean(value, key: str) -> bool:
 # Run-level keys of cfg/config.yaml and what each takes; num_envs and max_iterations may also be '' (YAML default).
 # num_envs has its own check (check_num_envs), shared with env.numEnvs and the Simulator.
 _RUN_BOOLEANS = ("torch_deterministic", "deterministic", "headless", "test", "multi_gpu", "capture_video", "verbose",
-                 "sweep_eval", "save_best")
+                 "sweep_eval", "save_best", "pbt")
 _RUN_WHOLE_NUMBERS = {"max_iterations": 0, "seed": -1, "graphics_device_id": -1,
                       "capture_video_freq": 1, "capture_video_len": 1}
 MAX_WORLDS = 2**31 - 1  # Warp's array dimensions are signed 32-bit integers
@@ -263,6 +263,9 @@ def check_run_config(cfg: DictConfig) -> None:
     for key in _RUN_BOOLEANS:
         if key in cfg:
             boolean(cfg[key], key)
+    if cfg.get("pbt", False) is True:
+        raise ConfigError("pbt=True is not supported: population-based training (IsaacGymEnvs' DexPBT) restarts runs "
+                          "from other runs' checkpoints; train one run, with pbt=False")
     cpu_threads(cfg.get("cpu_threads", 1))
     time_budget(cfg.get("max_train_time_s", ""))
     if cfg.get("learner", "rsl_rl") not in LEARNERS:

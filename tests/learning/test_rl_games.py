@@ -4,6 +4,7 @@ and errors, through the same run folder and summary as rsl-rl-lib's runs."""
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -296,3 +297,49 @@ def test_asymmetric_obs_of_an_rl_games_yaml_is_checked_against_the_task(tmp_path
         run(compose_config([*base, "task.env.asymmetric_obs=False"]))
     with pytest.raises(ConfigError, match=r"train\.asymmetric_obs='yes' is invalid: give True or False"):
         run(compose_config([*base, "train.asymmetric_obs=yes"]))
+
+
+def test_isaacgymenvs_allegro_kuka_yaml_runs_unchanged_and_its_player_samples(tmp_path, run_args, capsys):
+    """IsaacGymEnvs' AllegroKukaPPO.yaml, unchanged: its summaries keys interpolate the pbt run key, its max_epochs is
+    a number (100000) that the command line's max_iterations replaces with one line, and its player
+    (deterministic: False) makes test mode sample the policy's actions, which eval.json says."""
+    args = ["task=AllegroKuka", "train=AllegroKukaPPO", "num_envs=4", *run_args]
+    summary = run(compose_config([*args, "max_iterations=2"], config_dir=IGE_CFG))
+    assert summary["iterations"] == 2
+    assert "max_iterations=2 replaces train.params.config.max_epochs=100000" in capsys.readouterr().out
+    run_dir = _run_dir(tmp_path / "runs", "AllegroKukaPPO")
+    result = run(compose_config([*args, "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
+                                 "task.env.episodeLength_s=0.1"], config_dir=IGE_CFG))
+    assert result["episodes"] == 4 and result["test_actions"] == "sampled"
+    with pytest.raises(ConfigError, match=r"pbt=True is not supported"):
+        run(compose_config([*args, "pbt=True"], config_dir=IGE_CFG))
+
+
+def test_sampled_test_mode_actions_are_rl_games_player_draws():
+    """player.deterministic=False: the test-mode action is rl_games' own mean plus its own sigma times a standard
+    normal draw, clamped to [-1, 1] (the same draw made here from the same seed); True keeps the mean."""
+    from tensordict import TensorDict
+
+    from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, rl_games_params
+    from isaacgymenvs_mw.tasks.build import build_task
+
+    cfg = compose_config(["learner=rl_games", "task=Cartpole", "num_envs=4", "sim_device=cpu", "rl_device=cpu",
+                          "headless=True", "++train.params.config.player.deterministic=False"])
+    task = build_task(cfg)
+    runner = RlGamesRunner(RlGamesVecEnv(task), rl_games_params(cfg, task), log_dir=None, device="cpu")
+    assert runner.test_actions == "sampled"
+    model = runner.agent.model
+    with torch.no_grad():
+        model.a2c_network.sigma.fill_(-0.5)  # log std: std 0.61
+    model.eval()
+    obs = torch.randn(256, 4)
+    policy = runner.get_inference_policy("cpu")
+    torch.manual_seed(3)
+    ours = policy(TensorDict({"policy": obs}, batch_size=[256]))
+    with torch.no_grad():
+        out = model({"is_train": False, "obs": obs.clone(), "prev_actions": None})
+    torch.manual_seed(3)
+    draw = torch.randn_like(out["mus"])
+    torch.testing.assert_close(out["sigmas"], torch.full_like(out["sigmas"], math.exp(-0.5)))
+    torch.testing.assert_close(ours, (out["mus"] + out["sigmas"] * draw).clamp(-1, 1))
+    assert not torch.allclose(ours, out["mus"].clamp(-1, 1), atol=1e-3)
