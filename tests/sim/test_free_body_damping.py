@@ -92,3 +92,28 @@ def test_the_damping_reaches_the_task_from_its_yaml():
     undamped = isaacgymenvs_mw.make("BallBalance", num_envs=2, sim_device="cpu", rl_device="cpu",
                                     overrides=["task.env.assets.ball.angularDamping=0"])
     assert undamped.sim.free_body_velocity is None
+
+
+def test_allegro_kuka_cube_keeps_isaacgyms_default_damping_and_cap():
+    import isaacgymenvs_mw
+
+    # IGE loads AllegroKuka's cube with IsaacGym's default asset options: angular damping 0.5 1/s and a 64 rad/s cap
+    # on that free body, nothing on the arm and hand (fixed base) or the table.
+    task = isaacgymenvs_mw.make("AllegroKuka", num_envs=2, sim_device="cpu", rl_device="cpu")
+    m = task.sim.mj_model
+    rules = task.sim.free_body_velocity
+    free = [j for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    assert rules is not None and rules.joints == free and len(free) == 1
+    assert m.body(int(m.jnt_bodyid[free[0]])).name.startswith("object")
+    # the rule on a cube moving at 1 m/s and spinning at 40 and then 200 rad/s: damped by 1 - 0.5 dt (dt 1/120 s),
+    # the faster spin then scaled down to 64 rad/s; the linear velocity is not damped (IsaacGym's default 0)
+    dof = int(m.jnt_dofadr[free[0]])
+    keep = 1.0 - 0.5 / 120.0
+    for spin, want in ((40.0, 40.0 * keep), (200.0, 64.0)):
+        qvel = task.sim.data.qvel.numpy()
+        qvel[:, dof:dof + 6] = [1.0, 0.0, 0.0, 0.0, 0.0, spin]
+        task.sim.data.qvel.assign(qvel)
+        rules.launch()
+        after = task.sim.data.qvel.numpy()[:, dof:dof + 6]
+        np.testing.assert_allclose(after[:, 0], 1.0, rtol=1e-6)
+        np.testing.assert_allclose(after[:, 5], want, rtol=1e-5)
