@@ -38,6 +38,7 @@ def rsl_rl_config(train_cfg: dict) -> dict:
     check_train_config(train_cfg)
     runner = dict(train_cfg["runner"])
     runner.pop("reward_scale", None)  # the env adapter's (RslRlVecEnv), not OnPolicyRunner's
+    runner.pop("test_actions", None)  # test mode's (Runner.get_inference_policy)
     for key in ("num_steps_per_env", "max_iterations", "save_interval", "obs_groups"):
         if key not in runner:
             raise ConfigError(f"train.runner.{key} is required")
@@ -203,6 +204,14 @@ class Runner(TrainingRun, OnPolicyRunner):
         # checkpoint's, and test mode evaluates under the conditions the policy had reached.
         task.set_train_info(self.current_learning_iteration * steps_per_iteration)
 
+    def get_inference_policy(self, device: str | None = None) -> Callable:
+        """Test mode's policy: the mean action, or (``runner.test_actions: sampled``) a draw from the policy's
+        distribution, which the task clamps to its action range as every action."""
+        policy = super().get_inference_policy(device)
+        if self.test_actions != "sampled":
+            return policy
+        return lambda obs: policy(obs, stochastic_output=True)
+
     def export_modules(self) -> tuple[torch.nn.Module, torch.jit.ScriptModule]:
         """The deterministic policy (normaliser included) on the CPU, for ONNX and as TorchScript (rsl-rl-lib's
         exporters' modules: copies, the runner's own stay where they are)."""
@@ -286,6 +295,7 @@ class RslRlLearner(Learner):
     name = "rsl_rl"
 
     def check(self) -> None:
+        self.test_actions = str(self.cfg.train.runner.get("test_actions", "mean"))
         self.train_cfg = rsl_rl_config(to_dict(self.cfg.train))
         if not self.cfg.test:
             check_logger(self.train_cfg)
@@ -296,7 +306,12 @@ class RslRlLearner(Learner):
         env = with_amp(env, to_dict(self.cfg.train))  # a train YAML's amp section: the style reward (learning/amp.py)
         experiment = str(self.train_cfg.pop("experiment_name", None) or self.cfg.experiment or self.cfg.task_name)
         verbose = bool(self.cfg.get("verbose", False))
-        return lambda: Runner(env, self.train_cfg, log_dir=None, device=task.rl_device, verbose=verbose), experiment
+        def make_runner() -> Runner:
+            runner = Runner(env, self.train_cfg, log_dir=None, device=task.rl_device, verbose=verbose)
+            runner.test_actions = self.test_actions
+            return runner
+
+        return make_runner, experiment
 
     def max_iterations(self) -> int:
         return self._max_iterations

@@ -20,6 +20,9 @@ GRAD_CLIP_SCOPES = ("per_network", "global")
 OBS_NORMALIZATION_FORMS = ("rsl_rl", "rl_games")
 # ImageCNNModel's options (learning/models.py): the precision of its convolutions, the first the default.
 CNN_PRECISIONS = ("float32", "bfloat16")
+# Test mode's actions (runner.test_actions): the policy's mean, or draws from its distribution as rl_games' player
+# makes them with player.deterministic False (IsaacGymEnvs' AllegroKuka recipes).
+TEST_ACTIONS = ("mean", "sampled")
 IMAGE_MODEL = "isaacgymenvs_mw.learning.models:ImageCNNModel"
 
 
@@ -30,6 +33,7 @@ _TRAIN_CHECKS = {
     ("runner", "save_interval"): lambda v, k: whole_number(v, k, 1),
     ("runner", "init_at_random_ep_len"): boolean,
     ("runner", "reward_scale"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    ("runner", "test_actions"): lambda v, k: one_of(v, k, TEST_ACTIONS),
     ("algorithm", "learning_rate"): lambda v, k: real_number(v, k, 0.0, low_open=True),
     ("algorithm", "desired_kl"): lambda v, k: v is None or real_number(v, k, 0.0, low_open=True),
     ("algorithm", "num_learning_epochs"): lambda v, k: whole_number(v, k, 1),
