@@ -336,8 +336,8 @@ class _RlGamesPolicy(torch.nn.Module):
     normaliser ((x - mean) / sqrt(var + 1e-5), clamped to +-5, as rl_games' RunningMeanStd computes it; written out
     here because its TorchScript module cannot be traced as a submodule), its network's mean action, and rl_games'
     action mapping (the mean clamped to [-1, 1], then onto the action space's bounds). ``sample``: a draw from the
-    policy's Gaussian (std exp(log std) for ``continuous_a2c_logstd``, the network's sigma for ``continuous_a2c``) takes
-    the mean's place, as rl_games' player draws with ``deterministic: False``; for test mode only, never exported."""
+    policy's Gaussian (std exp(log std) for ``continuous_a2c_logstd``, the network's sigma for ``continuous_a2c``)
+    takes the mean's place, as rl_games' player draws with ``deterministic: False``; test mode only, never exported."""
 
     def __init__(self, agent, sample: bool = False, log_std: bool = True) -> None:
         super().__init__()

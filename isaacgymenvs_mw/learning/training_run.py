@@ -43,7 +43,7 @@ class TrainingRun:
 
     steps_per_env: int  # env steps per environment in one iteration's rollout
     save_interval: int  # a periodic checkpoint every this many iterations (0: none)
-    test_actions = "mean"  # test mode's actions: the policy's mean, or "sampled" (rl_games' player.deterministic False)
+    test_actions = "mean"  # test mode's actions: the mean, or "sampled" (runner.test_actions, rl_games' player)
 
     # What each learner's runner provides (learning/learners.py: its Learner makes it).
     def load_checkpoint(self, checkpoint: Path, task, state: dict | None = None) -> None:
