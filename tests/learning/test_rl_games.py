@@ -19,7 +19,7 @@ from isaacgymenvs_mw.learning.launch import run
 from isaacgymenvs_mw.utils.config import compose_config
 from isaacgymenvs_mw.utils.errors import ConfigError
 
-IGE_CFG = REPO_ROOT / "tests" / "data" / "isaacgymenvs_cfg"  # IsaacGymEnvs' own AntPPO.yaml, as it ships
+IGE_CFG = REPO_ROOT / "tests" / "data" / "isaacgymenvs_cfg"  # IsaacGymEnvs' own train YAMLs, as they ship
 
 
 def _run_dir(runs: Path, experiment: str) -> Path:
@@ -313,6 +313,25 @@ def test_isaacgymenvs_allegro_kuka_yaml_runs_unchanged_and_its_player_samples(tm
     assert result["episodes"] == 4 and result["test_actions"] == "sampled"
     with pytest.raises(ConfigError, match=r"pbt=True is not supported"):
         run(compose_config([*args, "pbt=True"], config_dir=IGE_CFG))
+
+
+def test_isaacgymenvs_shadow_hand_yaml_runs_unchanged_and_scales_the_reward_once(tmp_path, run_args, capsys):
+    """IsaacGymEnvs' ShadowHandPPO.yaml, unchanged, at 16 envs: its 32768-sample minibatch is fitted to an iteration's
+    128 samples with one line, it trains 2 iterations of its horizon 8, its reward_shaper scales the task's unscaled
+    reward by 0.01 once, and its deterministic player makes test mode take the mean action."""
+    from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
+    from isaacgymenvs_mw.utils.config import to_dict
+
+    args = ["task=ShadowHand", "train=ShadowHandPPO", "num_envs=16", *run_args]
+    cfg = compose_config([*args, "max_iterations=2"], config_dir=IGE_CFG)
+    assert "rewardScale" not in cfg.task.env and recipe_reward_scale(to_dict(cfg.train)) == 0.01
+    summary = run(cfg)
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 8 * 16
+    assert "minibatch_size=32768" in capsys.readouterr().out
+    run_dir = _run_dir(tmp_path / "runs", "ShadowHand")
+    result = run(compose_config([*args, "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
+                                 "task.env.episodeLength_s=0.1"], config_dir=IGE_CFG))
+    assert result["episodes"] == 16 and result["test_actions"] == "mean"
 
 
 def test_sampled_test_mode_actions_are_rl_games_player_draws():

@@ -11,7 +11,7 @@ import sys
 from conftest import CPU_ARGS, REPO_ROOT, TESTS_DIR
 from isaacgymenvs_mw.utils.user_config import is_isaacgym_task_yaml
 
-IGE_CFG = TESTS_DIR / "data" / "isaacgymenvs_cfg"  # IsaacGymEnvs' config.yaml, task/Ant.yaml and two train YAMLs
+IGE_CFG = TESTS_DIR / "data" / "isaacgymenvs_cfg"  # IsaacGymEnvs' config.yaml, task/Ant.yaml and train YAMLs
 
 
 def test_isaacgym_task_yamls_are_told_from_this_projects():
