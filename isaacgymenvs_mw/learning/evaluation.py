@@ -44,10 +44,13 @@ def evaluate(task, policy, device: str, reward_scale: float = 1.0, observers: Se
     groups = {name: value.clone() for name, value in task.evaluation_groups().items()}
     obs = env.get_observations()
     max_steps = task.longest_episode() + 2
+    reset_policy = getattr(policy, "reset", None)  # a recurrent policy: its state starts afresh with each episode
     with torch.inference_mode():
         for step in range(max_steps):
             actions = policy(obs.to(device))
             obs, rew, dones, extras = env.step(actions.to(env.device))
+            if reset_policy is not None:
+                reset_policy(dones)
             if step == 0:  # the first step compiles (torch, Triton): check after it
                 keep_stop_handler()
             active = ~finished

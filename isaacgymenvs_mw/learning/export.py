@@ -4,7 +4,9 @@ robot runtime needs (docs/deploy.md).
 ``out_dir`` receives:
   * ``policy.onnx``   input 'obs' (and one per image group, e.g. 'camera': 0-255 pixels), output 'actions', any
                       batch size; the metadata in ``metadata_props``
-                      (one entry per top-level key, values JSON-encoded)
+                      (one entry per top-level key, values JSON-encoded). A recurrent policy also takes its state
+                      ('h_in', and 'c_in' for an LSTM: layers x batch x units) and returns the next ('h_out',
+                      'c_out'); the metadata's "recurrent" entry describes them
   * ``policy.pt``     TorchScript; the metadata as the extra file ``metadata.json``
   * ``policy.json``   the same metadata, for people and scripts
   * ``model.mjb``     the task's compiled MuJoCo model (binary, same MuJoCo version), for sim-to-sim checks
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import io
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -56,15 +59,25 @@ def export_policy(runner: TrainingRun, out_dir: Path, task=None) -> tuple[Path, 
 def policy_files(runner: TrainingRun, task=None) -> dict[str, bytes]:
     """The exported files by name, as bytes: no library writes to the disk itself, so none can abort on a full one."""
     model, jit = runner.export_modules()  # the learner's policy, normaliser included, on the CPU
-    # An image policy (learning/models.py) has one more input per image group, named after it ("camera").
+    # An image policy (learning/models.py) has one more input per image group, named after it ("camera"); a
+    # recurrent one its state, whose batch is its second axis.
     inputs = list(getattr(model, "input_names", ["obs"]))
+    outputs = list(getattr(model, "output_names", ["actions"]))
+    recurrent = bool(getattr(model, "is_recurrent", False))
+    axes = {name: {1 if recurrent and name not in ("obs", "actions") else 0: "batch"} for name in [*inputs, *outputs]}
     onnx_buffer = io.BytesIO()
-    with torch.no_grad():
+    with torch.no_grad(), warnings.catch_warnings():
+        # torch warns about any LSTM exported at batch 1 unless its state is an input, which it is here
+        warnings.filterwarnings("ignore", message="Exporting a model to ONNX with a batch_size other than 1")
         torch.onnx.export(
-            model, model.get_dummy_inputs(), onnx_buffer, input_names=inputs, output_names=["actions"],
-            dynamic_axes={name: {0: "batch"} for name in [*inputs, "actions"]}, opset_version=18, dynamo=False,
+            model, model.get_dummy_inputs(), onnx_buffer, input_names=inputs, output_names=outputs,
+            dynamic_axes=axes, opset_version=18, dynamo=False,
         )
     metadata = policy_metadata(task) if task is not None else None
+    if metadata is not None and recurrent:
+        metadata["recurrent"] = {"type": model.rnn_type, "state_inputs": inputs[1:], "state_outputs": outputs[1:],
+                                 "state_shape": [model.num_layers, "batch", model.hidden_size],
+                                 "episode_start": "zeros"}
     text = json.dumps(metadata, indent=2) if metadata is not None else None
     jit_buffer = io.BytesIO()
     torch.jit.save(jit, jit_buffer, _extra_files={METADATA_FILE: text} if text is not None else None)

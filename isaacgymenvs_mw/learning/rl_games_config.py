@@ -52,6 +52,10 @@ REFUSED_KEYS = {
 _ALGOS = ("a2c_continuous",)
 _MODELS = ("continuous_a2c_logstd", "continuous_a2c")
 _NETWORKS = ("actor_critic",)
+_RNNS = ("lstm", "gru")
+# network.rnn keys rl_games' actor_critic reads: before_mlp puts the RNN on the observation (else after the MLP, where
+# concat_input also feeds it the observation); concat_output adds the observation to its output; layer_norm after it
+RNN_KEYS = ("name", "units", "layers", "before_mlp", "concat_input", "concat_output", "layer_norm")
 # rl_games keeps the rate fixed for any schedule but adaptive and linear; IsaacGymEnvs' YAMLs write constant or None
 _SCHEDULES = ("adaptive", "linear", "constant", None, "None", "identity")
 # Keys of an rl_games train YAML beside params: IsaacGymEnvs' TrifingerPPO.yaml states asymmetric_obs, which its
@@ -89,11 +93,12 @@ def check_rl_games_config(train_cfg: dict) -> None:
             "actions")
     network = params["network"]
     _choice(network.get("name"), "train.params.network.name", _NETWORKS, "an MLP actor-critic")
-    for key in ("rnn", "cnn"):
-        if network.get(key):
-            raise ConfigError(f"train.params.network.{key} is not supported with learner=rl_games: test mode and the "
-                              "exported policy need a feed-forward MLP policy (use the rsl_rl learner for images)")
+    if network.get("cnn"):
+        raise ConfigError("train.params.network.cnn is not supported with learner=rl_games: the task's observation "
+                          "is a vector here (use the rsl_rl learner for images)")
     config = params["config"]
+    if network.get("rnn"):
+        _check_rnn(network["rnn"], config)
     for key, why in REFUSED_KEYS.items():
         if config.get(key) not in (None, False, {}, 0):
             raise ConfigError(f"train.params.config.{key}={config[key]!r} is not supported with learner=rl_games: "
@@ -121,6 +126,33 @@ def check_rl_games_config(train_cfg: dict) -> None:
     if not isinstance(player.get("deterministic", True), bool):
         raise ConfigError(f"train.params.config.player.deterministic={player['deterministic']!r} is invalid: give "
                           "True (test mode runs the mean action) or False (it samples the policy's actions)")
+
+
+def seq_length(config: dict) -> int:
+    """The RNN's training sequence length: ``seq_length``, or ``seq_len`` as older rl_games named it (IsaacGymEnvs'
+    LSTM YAMLs write it; rl_games 1.6 reads only ``seq_length`` and would fall back to 4 without a word)."""
+    return int(config.get("seq_length", config.get("seq_len", 4)))
+
+
+def _check_rnn(rnn: Any, config: dict) -> None:
+    """``network.rnn``: rl_games' LSTM or GRU, trained on sequences of ``seq_length`` steps of the rollout."""
+    if not isinstance(rnn, dict):
+        raise ConfigError(f"train.params.network.rnn={rnn!r} is invalid: give {{name: lstm or gru, units, layers}}")
+    unknown = sorted(set(rnn) - set(RNN_KEYS))
+    if unknown:
+        raise ConfigError(f"train.params.network.rnn.{unknown[0]}: not an rl_games RNN key (valid: {list(RNN_KEYS)})")
+    _choice(rnn.get("name"), "train.params.network.rnn.name", _RNNS, "rl_games' recurrent layers")
+    for key in ("units", "layers"):
+        value = rnn.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ConfigError(f"train.params.network.rnn.{key}={value!r} is invalid: give a whole number >= 1")
+    if "seq_len" in config and "seq_length" in config and int(config["seq_len"]) != int(config["seq_length"]):
+        raise ConfigError(f"train.params.config.seq_len={config['seq_len']} and seq_length={config['seq_length']} "
+                          "disagree: give one (seq_length, as rl_games 1.6 names it)")
+    length, horizon = seq_length(config), int(config.get("horizon_length", 0))
+    if length < 1 or horizon % length:
+        raise ConfigError(f"train.params.config.seq_length={length} is invalid with horizon_length={horizon}: the "
+                          "rollout is cut into sequences of seq_length steps, so give a divisor of horizon_length")
 
 
 def _choice(value: Any, key: str, valid: tuple, what: str) -> None:

@@ -23,7 +23,7 @@ from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.learners import Learner
-from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config
+from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config, seq_length
 from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
 from isaacgymenvs_mw.learning.training_run import Iteration, TrainingRun
 from isaacgymenvs_mw.learning.vecenv import TaskEnv
@@ -58,7 +58,11 @@ def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
         raise ConfigError(f"task={cfg.task_name} observes camera images, which learner=rl_games does not feed to a "
                           "CNN here: train it with the rsl_rl learner")
     config["num_actors"] = task.num_envs
-    fit_minibatches(config, task.num_envs, announce=not cfg.test)
+    if params["network"].get("rnn"):
+        config["seq_length"] = seq_length(config)  # IsaacGymEnvs' LSTM YAMLs say seq_len, which rl_games 1.6 skips
+        config.pop("seq_len", None)
+    fit_minibatches(config, task.num_envs, announce=not cfg.test,
+                    multiple=config["seq_length"] if params["network"].get("rnn") else 1)
     config["device"] = config["device_name"] = task.rl_device
     config["multi_gpu"] = bool(cfg.get("multi_gpu", False))
     config.setdefault("name", cfg.task_name)
@@ -67,25 +71,28 @@ def rl_games_params(cfg: DictConfig, task: VecTask) -> dict:
     return params
 
 
-def fit_minibatches(config: dict, num_envs: int, announce: bool) -> None:
+def fit_minibatches(config: dict, num_envs: int, announce: bool, multiple: int = 1) -> None:
     """rl_games refuses a ``minibatch_size`` that does not divide an iteration's samples (``horizon_length`` x envs):
     IsaacGymEnvs' YAMLs size it for their default envs (AntPPO's 32768 at 4096 envs), so a run with fewer envs (a
     CPU, a test) takes the largest divisor below it instead, with one line when it trains (``announce``); test mode
-    builds the same agent but never updates, so it adapts silently. ``central_value_config`` alike."""
+    builds the same agent but never updates, so it adapts silently. ``central_value_config`` alike. An RNN's
+    minibatches hold whole sequences: ``multiple`` (its ``seq_length``) divides the size too."""
     samples = int(config.get("horizon_length", 0)) * num_envs
     sections = [("train.params.config", config)]
     if isinstance(config.get("central_value_config"), dict):
         sections.append(("train.params.config.central_value_config", config["central_value_config"]))
     for where, section in sections:
         size = section.get("minibatch_size") or num_envs * int(section.get("minibatch_size_per_env", 0) or 0)
-        if samples <= 0 or int(size) <= 0 or samples % int(size) == 0:
+        if samples <= 0 or int(size) <= 0 or (samples % int(size) == 0 and int(size) % multiple == 0):
             continue
-        fitted = max(d for d in range(1, min(int(size), samples) + 1) if samples % d == 0)
+        fitted = max(d for d in range(multiple, max(min(int(size), samples), multiple) + 1, multiple)
+                     if samples % d == 0)
         section["minibatch_size"] = fitted
         if announce:
             print(f"[train] note: {where}.minibatch_size={size} does not divide an iteration's {samples} samples "
-                  f"({num_envs} envs x horizon_length {config.get('horizon_length')}), as rl_games requires: "
-                  f"using {fitted}", flush=True)
+                  f"({num_envs} envs x horizon_length {config.get('horizon_length')})"
+                  + (f" in whole sequences of seq_length {multiple}" if multiple > 1 else "")
+                  + f", as rl_games requires: using {fitted}", flush=True)
 
 
 class RlGamesVecEnv(TaskEnv):
@@ -192,6 +199,7 @@ class RlGamesRunner(TrainingRun):
         # test mode's actions: the mean, or samples of the policy as IsaacGymEnvs' player draws them
         self.test_actions = "mean" if (config.get("player") or {}).get("deterministic", True) else "sampled"
         self.log_std_model = params["model"]["name"] == "continuous_a2c_logstd"
+        self.is_recurrent = bool(self.agent.is_rnn)
 
     def _learner_tensors(self) -> list[torch.Tensor]:
         """Every tensor that defines the learner: the model's parameters and buffers (normalisers included), a
@@ -309,8 +317,9 @@ class RlGamesRunner(TrainingRun):
 
     def policy_module(self) -> torch.nn.Module:
         """The deterministic policy as a module: raw observations -> the action the env receives (rl_games clamps
-        the mean to [-1, 1] and maps it onto the action space, as in training)."""
-        return _RlGamesPolicy(self.agent)
+        the mean to [-1, 1] and maps it onto the action space, as in training). A recurrent policy also takes its
+        state and returns the next (``_RlGamesRecurrentPolicy``)."""
+        return _RlGamesRecurrentPolicy(self.agent) if self.is_recurrent else _RlGamesPolicy(self.agent)
 
     def export_modules(self) -> tuple[torch.nn.Module, torch.jit.ScriptModule]:
         """The deterministic policy on the CPU, for ONNX and traced as TorchScript (a copy of the agent's)."""
@@ -321,8 +330,11 @@ class RlGamesRunner(TrainingRun):
     def get_inference_policy(self, device: str | None = None) -> Callable:
         """Test mode's policy: the mean action, or (``player.deterministic: False``) a sample of the policy's
         Gaussian, clamped and mapped as the mean is (rl_games' player)."""
-        module = _RlGamesPolicy(self.agent, sample=self.test_actions == "sampled", log_std=self.log_std_model)
+        kind = _RlGamesRecurrentPolicy if self.is_recurrent else _RlGamesPolicy
+        module = kind(self.agent, sample=self.test_actions == "sampled", log_std=self.log_std_model)
         module = module.to(device or self.device).eval()
+        if self.is_recurrent:
+            return RecurrentPolicy(module)
 
         def policy(obs) -> torch.Tensor:
             with torch.no_grad():
@@ -356,17 +368,103 @@ class _RlGamesPolicy(torch.nn.Module):
         self.input_names = ["obs"]
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        if self.normalize:
-            obs = ((obs - self.obs_mean) / self.obs_std).clamp(-5.0, 5.0)
-        mu, sigma = self.network({"obs": obs})[:2]
+        mu, sigma = self.network({"obs": self.normalized(obs)})[:2]
+        return self.action(mu, sigma)
+
+    def normalized(self, obs: torch.Tensor) -> torch.Tensor:
+        if not self.normalize:
+            return obs
+        return ((obs - self.obs_mean) / self.obs_std).clamp(-5.0, 5.0)
+
+    def action(self, mu: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+        """The env's action from the network's mean (or a draw around it, ``sample``)."""
         if self.sample:
             mu = mu + (sigma.exp() if self.log_std else sigma) * torch.randn_like(mu)
         if not self.clip:
             return mu
         return self.low + (mu.clamp(-1.0, 1.0) + 1.0) * 0.5 * (self.high - self.low)
 
-    def get_dummy_inputs(self) -> tuple[torch.Tensor]:
+    def get_dummy_inputs(self) -> tuple[torch.Tensor, ...]:
         return (torch.zeros(1, *self.obs_shape, device=self.low.device),)
+
+
+class _RlGamesRecurrentPolicy(_RlGamesPolicy):
+    """An rl_games LSTM or GRU policy, one step at a time: (observation, state) -> (action, next state), the state as
+    rsl-rl-lib's recurrent exports carry it (``h_in``, and ``c_in`` for an LSTM, each layers x batch x units; zeros
+    when an episode starts). The actor's path of rl_games' ``actor_critic`` forward, its layers reused: the RNN on
+    the observation (``before_mlp``) or on the MLP's output (with the observation beside it, ``concat_input``), then
+    its layer norm and ``concat_output``; with ``separate`` networks the critic's RNN is not needed for the action.
+    A module of its own, since rl_games' forward sizes its sequences from Python integers, which a trace would
+    freeze at one batch size."""
+
+    is_recurrent = True
+
+    def __init__(self, agent, sample: bool = False, log_std: bool = True) -> None:
+        super().__init__(agent, sample=sample, log_std=log_std)
+        net = self.network
+        rnn = net.a_rnn if net.separate else net.rnn
+        self.rnn = rnn.rnn  # rl_games' LSTMWithDones / GRUWithDones around torch's layer
+        self.rnn_type = "lstm" if isinstance(self.rnn, torch.nn.LSTM) else "gru"
+        self.num_layers, self.hidden_size = self.rnn.num_layers, self.rnn.hidden_size
+        self.layer_norm = (net.a_layer_norm if net.separate else net.layer_norm) if net.rnn_ln else None
+        self.before_mlp, self.concat_input = net.is_rnn_before_mlp, net.rnn_concat_input
+        self.concat_output = net.rnn_concat_output
+        states = ["h", "c"] if self.rnn_type == "lstm" else ["h"]
+        self.input_names = ["obs", *(f"{s}_in" for s in states)]
+        self.output_names = ["actions", *(f"{s}_out" for s in states)]
+
+    def forward(self, obs: torch.Tensor, *state: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        mu, sigma, state = self.step(obs, state)
+        return (self.action(mu, sigma), *state)
+
+    def step(self, obs: torch.Tensor, state: tuple[torch.Tensor, ...]) -> tuple:
+        """The network's mean and sigma for one step, and the RNN's next state."""
+        net, x = self.network, self.normalized(obs).flatten(1)
+        out = x if self.before_mlp else net.actor_mlp(x)
+        if not self.before_mlp and self.concat_input:
+            out = torch.cat([out, x], dim=1)
+        out, state = self.rnn(out.unsqueeze(0), tuple(state) if self.rnn_type == "lstm" else state[0])
+        out = out.squeeze(0)
+        state = state if isinstance(state, tuple) else (state,)
+        if self.layer_norm is not None:
+            out = self.layer_norm(out)
+        if self.concat_output:
+            out = torch.cat([out, x], dim=1)
+        if self.before_mlp:
+            out = net.actor_mlp(out)
+        mu = net.mu_act(net.mu(out))
+        sigma = net.sigma_act(net.sigma) if net.fixed_sigma else net.sigma_act(net.sigma(out))
+        return mu, mu * 0.0 + sigma, state
+
+    def initial_state(self, batch: int) -> tuple[torch.Tensor, ...]:
+        shape = (self.num_layers, batch, self.hidden_size)
+        return tuple(torch.zeros(shape, device=self.low.device) for _ in self.input_names[1:])
+
+    def get_dummy_inputs(self) -> tuple[torch.Tensor, ...]:
+        return (*super().get_dummy_inputs(), *self.initial_state(1))
+
+
+class RecurrentPolicy:
+    """Test mode's recurrent policy: keeps each env's state between steps (zeros at the start), and ``reset(dones)``
+    zeroes the state of the envs whose episode just ended, as rl_games' player does."""
+
+    def __init__(self, module: _RlGamesRecurrentPolicy) -> None:
+        self.module = module
+        self.state: tuple[torch.Tensor, ...] | None = None
+
+    def __call__(self, obs) -> torch.Tensor:
+        x = obs["policy"]
+        if self.state is None:
+            self.state = self.module.initial_state(x.shape[0])
+        with torch.no_grad():
+            action, *state = self.module(x, *self.state)
+        self.state = tuple(state)
+        return action
+
+    def reset(self, dones: torch.Tensor) -> None:
+        if self.state is not None:
+            keep = (dones == 0).to(self.state[0].device, self.state[0].dtype).view(1, -1, 1)
+            self.state = tuple(s * keep for s in self.state)
 
 
 def _mean_losses(**lists: list) -> dict[str, float]:

@@ -110,13 +110,18 @@ def test_a_rl_games_run_stopped_by_sigterm_keeps_its_checkpoint_and_summary(tmp_
     ("train.params.algo.name=sac", "train.params.algo.name='sac' is not supported with learner=rl_games"),
     ("+train.params.config.schedule_type=sometimes", "train.params.config.schedule_type='sometimes' is not "
                                                     "supported"),
-    ("+train.params.network.rnn.name=lstm", "train.params.network.rnn is not supported"),
+    ("+train.params.network.cnn.type=conv2d", "train.params.network.cnn is not supported"),
+    ("+train.params.network.rnn.name=transformer", "train.params.network.rnn.name='transformer' is not supported"),
+    ("+train.params.network.rnn={name:lstm,units:8,layers:1,size:3}", "train.params.network.rnn.size: not an rl_games"),
+    ("+train.params.network.rnn={name:lstm,units:0,layers:1}", "train.params.network.rnn.units=0 is invalid"),
+    ("+train.params.network.rnn={name:lstm,units:8,layers:1} ++train.params.config.seq_length=5",
+     "train.params.config.seq_length=5 is invalid with horizon_length=16"),
 ])
 def test_rl_games_keys_this_project_cannot_honour_fail_naming_the_key(override, message):
     from isaacgymenvs_mw.learning.train_config import check_before_start
 
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
-        check_before_start(compose_config(["learner=rl_games", override, "sim_device=cpu", "rl_device=cpu"]))
+        check_before_start(compose_config(["learner=rl_games", *override.split(), "sim_device=cpu", "rl_device=cpu"]))
 
 
 def test_learner_and_train_yaml_must_agree_and_checkpoints_name_their_learner(tmp_path):
