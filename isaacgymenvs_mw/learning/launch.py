@@ -244,7 +244,8 @@ def _signal_number(err: KeyboardInterrupt) -> int:
 
 def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
     """capture_video=True: film env 0 in real time, capture_video_len env steps every capture_video_freq."""
-    from isaacgymenvs_mw.sim.video import GLBackendError, VideoRecorder  # deferred: only recording needs GL
+    # deferred: only recording needs GL
+    from isaacgymenvs_mw.sim.video import VIEW_KEY, GLBackendError, VideoRecorder, camera_view
 
     every, length = int(cfg.get("capture_video_freq", 1464)), int(cfg.get("capture_video_len", 100))
     # A task that observes camera images: what the policy sees (env 0's latest frame) beside the view.
@@ -253,7 +254,7 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
         lambda: observations.camera_picture(task.control_steps).cpu().numpy())
     try:
         recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
-                                 beside=beside)
+                                 beside=beside, view=camera_view(cfg.task.env.get(VIEW_KEY.rsplit(".", 1)[1])))
     except GLBackendError as err:  # only the video is lost: the run goes on, as the README promises
         print(f"[video] no video: {err}; the run goes on without it", flush=True)
         return

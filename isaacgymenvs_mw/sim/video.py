@@ -30,6 +30,7 @@ import numpy as np
 from isaacgymenvs_mw.sim.gl import gl_install_hint
 from isaacgymenvs_mw.sim.simulator import Simulator
 from isaacgymenvs_mw.sim.terrain import ground_geoms
+from isaacgymenvs_mw.utils.config import check_entry, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 _BODY_RGBA = np.array([0.85, 0.55, 0.25, 1.0])
@@ -39,12 +40,33 @@ _GRID_SPACING = 0.5  # m
 _NEAR_CLIP_M, _FAR_CLIP_M = 0.05, 1000.0  # at most; small models keep MuJoCo's own (extent-scaled) planes
 
 AUTO = "auto"  # track_body default: the floating base's body when there is one, a fixed view otherwise
+VIEW_KEY = "task.env.videoCamera"  # a task's own camera for its videos: {eye: [x, y, z], lookat: [x, y, z]} (m)
+
+
+def camera_view(value, key: str = VIEW_KEY) -> tuple[np.ndarray, np.ndarray] | None:
+    """A task's video camera, ``{eye, lookat}`` in world coordinates (m), as (eye, lookat); None where not given.
+    Scenes the automatic framing cannot see into (Trifinger's arena, whose wall hides the cube from a side view)
+    give one."""
+    if value is None:
+        return None
+    check_entry(value, key, ("eye", "lookat"))
+    points = []
+    for name in ("eye", "lookat"):
+        point = value.get(name)
+        if isinstance(point, (str, bytes)) or not hasattr(point, "__len__") or len(point) != 3:
+            raise ConfigError(f"{key}.{name}={point!r} is invalid: give a point [x, y, z] in metres")
+        points.append(np.array([real_number(c, f"{key}.{name}") for c in point]))
+    if np.linalg.norm(points[0] - points[1]) < 1e-6:
+        raise ConfigError(f"{key}: eye and lookat are the same point {points[0].tolist()}: give the camera a "
+                          "position apart from what it looks at")
+    return points[0], points[1]
 
 # A throwaway process opens a context with the backend this process would use: a backend that cannot start may
 # abort the process that tries (MuJoCo's GLFW does on a second try without a display), so this one never tries
 # an unproven backend, and remembers the verdict.
 _PROBE = """
 import mujoco
+from isaacgymenvs_mw.utils.config import check_entry, real_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom size=".1"/></worldbody></mujoco>')
 renderer = mujoco.Renderer(model, height=8, width=8)
@@ -134,6 +156,8 @@ class VideoRecorder:
         world: which world to film.
         beside: returns an (h, w, 3) uint8 picture to show to the right of each frame (what the policy sees: a
             task's camera images); it is scaled up by a whole factor to fit the frame's height. None: the view alone.
+        view: (eye, lookat), world points (m): a fixed camera at eye looking at lookat (``camera_view``), in place of
+            the automatic framing; nothing is tracked then.
     """
 
     def __init__(
@@ -148,6 +172,7 @@ class VideoRecorder:
         length: int = 100,
         world: int = 0,
         beside: Callable[[], np.ndarray] | None = None,
+        view: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         if int(every) < 1 or int(length) < 1:
             raise ConfigError(f"capture_video_freq and capture_video_len must be >= 1, got {every} and {length}")
@@ -180,7 +205,8 @@ class VideoRecorder:
         self._planes = [g for g in range(self.model.ngeom)
                         if int(self.model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)]
 
-        self.track_body_id = self._tracked_body(track_body)
+        self.view = view
+        self.track_body_id = None if view is not None else self._tracked_body(track_body)
         self.camera = self._make_camera()
         self.renderer = _start_renderer(self.model, self.height, self.width)
         # Release the GL context at the latest when the interpreter exits (MuJoCo's own __del__ fails then).
@@ -264,6 +290,15 @@ class VideoRecorder:
     def _make_camera(self) -> mujoco.MjvCamera:
         cam = mujoco.MjvCamera()
         cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        if self.view is not None:
+            # MuJoCo's free camera sits at lookat - distance * (cos el cos az, cos el sin az, sin el)
+            eye, lookat = self.view
+            forward = lookat - eye
+            cam.distance = float(np.linalg.norm(forward))
+            cam.azimuth = math.degrees(math.atan2(forward[1], forward[0]))
+            cam.elevation = math.degrees(math.asin(float(forward[2]) / cam.distance))
+            cam.lookat[:] = lookat
+            return cam
         lo, hi = self._model_box()
         size = hi - lo
         if self.track_body_id is not None:

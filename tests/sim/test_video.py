@@ -304,3 +304,52 @@ def test_mocap_goal_marker_is_filmed_where_the_task_puts_it(tmp_path):
     assert np.isin(seg, goal_geoms).sum() > 20  # in the picture
     recorder.close()
     task.close()
+
+
+def test_a_task_camera_stands_at_its_eye_and_looks_at_its_lookat(tmp_path):
+    """env.videoCamera {eye, lookat}: MuJoCo's scene puts the rendering camera at eye, facing lookat (its own
+    mjv_updateScene, not this project's arithmetic, is the reference); Trifinger's shipped view sees into the arena,
+    where the side view the framing picks sees the wall and not the cube."""
+    from isaacgymenvs_mw.sim.video import camera_view
+
+    task = make("Trifinger")
+    task.reset()
+    for eye, lookat in [([0.3, -0.4, 0.5], [0.0, 0.05, 0.1]), ([-1.0, 2.0, -0.5], [0.2, 0.0, 0.3])]:
+        rec = VideoRecorder(task.sim, tmp_path, fps=50, width=64, height=48,
+                            view=camera_view({"eye": eye, "lookat": lookat}))
+        rec.renderer.update_scene(rec.data, camera=rec.camera)
+        left, right = rec.renderer.scene.camera[0], rec.renderer.scene.camera[1]  # the stereo pair around the head
+        direction = (np.array(lookat) - np.array(eye)) / np.linalg.norm(np.array(lookat) - np.array(eye))
+        np.testing.assert_allclose((np.array(left.pos) + np.array(right.pos)) / 2, eye, atol=1e-5)
+        np.testing.assert_allclose(left.forward, direction, atol=1e-5)
+        rec.close()
+
+    cube = task.sim.body_id("object/cube")
+    pixels = {}
+    for name, view in [("shipped", camera_view(task.cfg["env"]["videoCamera"])), ("framed", None)]:
+        rec = VideoRecorder(task.sim, tmp_path, fps=50, width=160, height=120, view=view)
+        seg = rec.renderer
+        seg.enable_segmentation_rendering()
+        rec._sync()
+        seg.update_scene(rec.data, camera=rec.camera)
+        ids = seg.render()[..., 0]  # geom ids
+        cube_geoms = np.flatnonzero(rec.model.geom_bodyid == cube)
+        pixels[name] = int(np.isin(ids, cube_geoms).sum())
+        seg.disable_segmentation_rendering()
+        rec.close()
+    assert pixels["shipped"] > 100 and pixels["framed"] < pixels["shipped"] / 4, pixels
+    task.close()
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    ({"eye": [0, 0]}, r"task.env.videoCamera.eye=\[0, 0\] is invalid: give a point \[x, y, z\] in metres"),
+    ({"eye": [0, 0, 1], "lookat": [0, 0, "up"]}, r"task.env.videoCamera.lookat='up' is invalid"),
+    ({"eye": [0, 0, 1], "lookat": [0, 0, 1]}, r"eye and lookat are the same point"),
+    ({"eye": [0, 0, 1], "target": [0, 0, 0]}, r"task.env.videoCamera: unknown key\(s\) \['target'\]"),
+])
+def test_bad_task_camera_is_one_line_naming_the_key(value, message):
+    from isaacgymenvs_mw.sim.video import camera_view
+    from isaacgymenvs_mw.utils.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        camera_view(value)
