@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, open_dict
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.learners import Learner
@@ -493,14 +493,21 @@ class RlGamesLearner(Learner):
     def check(self) -> None:
         train_cfg = to_dict(self.cfg.train)
         check_train_config(train_cfg, self.cfg.get("learner"))
-        self._max_epochs = int(train_cfg["params"]["config"].get("max_epochs", -1))
+        written = train_cfg["params"]["config"].get("max_epochs")
+        self._max_epochs = int(written if written is not None else -1)
         wanted = self.cfg.get("max_iterations", "")
         if wanted not in ("", None) and int(wanted) != self._max_epochs:
             # A YAML that writes max_epochs as a number (IsaacGymEnvs' AllegroKukaPPO: 100000) does not interpolate
-            # the run key; the command line's value wins, and rl_games' linear schedules count to it too.
-            print(f"[train] note: max_iterations={wanted} replaces train.params.config.max_epochs="
-                  f"{self._max_epochs}, which does not read it", flush=True)
-            self.cfg.train.params.config.max_epochs = self._max_epochs = int(wanted)
+            # the run key, and one may leave it out (rl_games then trains without end: IGE's ShadowHandPPOLSTM); the
+            # command line's value wins, and rl_games' linear schedules count to it too.
+            told = " is not set" if written is None else f"={written}, which does not read it,"
+            print(f"[train] note: train.params.config.max_epochs{told} and max_iterations={wanted} gives it",
+                  flush=True)
+            with open_dict(self.cfg.train.params.config):
+                self.cfg.train.params.config.max_epochs = self._max_epochs = int(wanted)
+        if written is None and self._max_epochs < 0:
+            raise ConfigError("train.params.config.max_epochs is not set, and rl_games would train without end: give "
+                              "max_iterations=N on the command line (or max_epochs in the YAML)")
         if self._max_epochs < 0:
             raise ConfigError(f"train.params.config.max_epochs={self._max_epochs} is invalid: give the iterations to "
                               "train (or max_iterations=N on the command line)")

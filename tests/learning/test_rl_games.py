@@ -311,7 +311,8 @@ def test_isaacgymenvs_allegro_kuka_yaml_runs_unchanged_and_its_player_samples(tm
     args = ["task=AllegroKuka", "train=AllegroKukaPPO", "num_envs=4", *run_args]
     summary = run(compose_config([*args, "max_iterations=2"], config_dir=IGE_CFG))
     assert summary["iterations"] == 2
-    assert "max_iterations=2 replaces train.params.config.max_epochs=100000" in capsys.readouterr().out
+    assert ("train.params.config.max_epochs=100000, which does not read it, and max_iterations=2 gives it"
+            in capsys.readouterr().out)
     run_dir = _run_dir(tmp_path / "runs", "AllegroKukaPPO")
     result = run(compose_config([*args, "test=True", f"checkpoint={run_dir / 'model_2.pt'}",
                                  "task.env.episodeLength_s=0.1"], config_dir=IGE_CFG))

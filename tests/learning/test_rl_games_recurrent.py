@@ -133,6 +133,24 @@ def test_isaacgymenvs_allegro_kuka_lstm_yaml_trains_evaluates_and_exports_its_st
     np.testing.assert_allclose(state[0], ours[0].numpy(), rtol=1e-4, atol=1e-5)
 
 
+def test_isaacgymenvs_shadow_hand_lstm_yaml_trains_and_evaluates(tmp_path, run_args, capsys):
+    """IsaacGymEnvs' ShadowHandPPOLSTM.yaml, unchanged: an LSTM after the MLP with the observation beside its input,
+    seq_len 4 (taken as seq_length), no max_epochs (rl_games would train without end: max_iterations gives it, and
+    without it the run stops with one line); 2 iterations, then test mode on its checkpoint."""
+    args = ["task=ShadowHand", "train=ShadowHandPPOLSTM", "num_envs=8", *run_args]
+    with pytest.raises(ConfigError, match=r"train.params.config.max_epochs is not set, and rl_games would train "):
+        run(compose_config(args, config_dir=IGE_CFG))
+    summary = run(compose_config([*args, "max_iterations=2"], config_dir=IGE_CFG))
+    assert summary["iterations"] == 2 and summary["env_steps"] == 2 * 32 * 8
+    printed = capsys.readouterr().out
+    assert "max_epochs is not set and max_iterations=2 gives it" in printed
+    assert "in whole sequences of seq_length 4" in printed
+    (run_dir,) = (tmp_path / "runs" / "ShadowHandLSTM").iterdir()
+    result = run(compose_config([*args, "test=True", "max_iterations=2", f"checkpoint={run_dir / 'model_2.pt'}",
+                                 "task.env.episodeLength_s=0.1"], config_dir=IGE_CFG))
+    assert result["episodes"] == 8 and result["test_actions"] == "mean"
+
+
 def _module_from(checkpoint: Path, args: list[str]):
     from isaacgymenvs_mw.learning.rl_games_runner import RlGamesRunner, RlGamesVecEnv, _RlGamesRecurrentPolicy
     from isaacgymenvs_mw.learning.rl_games_runner import rl_games_params
