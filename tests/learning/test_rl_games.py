@@ -172,7 +172,7 @@ def test_the_test_mode_policy_is_rl_games_deterministic_action():
 # reward_shaper.scale_value of IsaacGymEnvs' <Task>PPO.yaml (isaac-sim/IsaacGymEnvs isaacgymenvs/cfg/train): the factor
 # on IGE's reward that its rl_games learned from.
 IGE_REWARD_SCALE = {"AllegroHand": 0.01, "ShadowHand": 0.01, "Ant": 0.01, "Cartpole": 0.1, "FrankaCubeStack": 1.0,
-                    "Trifinger": 0.01}
+                    "Trifinger": 0.01, "AllegroKuka": 0.01}
 
 
 @pytest.mark.parametrize("task", sorted(IGE_REWARD_SCALE))
@@ -294,6 +294,29 @@ def test_shipped_rl_games_trifinger_recipe_is_isaacgymenvs_own():
     cv_mine, cv_theirs = mine["central_value_config"], theirs["central_value_config"]
     assert cv_mine.pop("minibatch_size_per_env") * 16384 == cv_theirs.pop("minibatch_size")
     assert cv_mine == cv_theirs
+
+
+@pytest.mark.parametrize("recipe", ["AllegroKukaPPO", "AllegroKukaLSTMPPO"])
+def test_shipped_rl_games_allegro_kuka_recipes_are_isaacgymenvs_own(recipe):
+    """learner=rl_games task=AllegroKuka (and train=rl_games/AllegroKukaLSTMPPO, which inherits it) compose to
+    IsaacGymEnvs' AllegroKukaPPO.yaml (AllegroKukaLSTMPPO.yaml): the same network and every setting the same, only
+    rl_games' bookkeeping (its summaries' throttle, score_to_win, printing) left out."""
+    from isaacgymenvs_mw.learning.train_config import check_before_start
+    from isaacgymenvs_mw.utils.config import to_dict
+
+    cfg = compose_config(["learner=rl_games", "task=AllegroKuka", f"train=rl_games/{recipe}", "sim_device=cpu",
+                          "rl_device=cpu"])
+    check_before_start(cfg)
+    ours = to_dict(cfg.train)
+    ige = to_dict(compose_config(["task=AllegroKuka", f"train={recipe}"], config_dir=IGE_CFG).train)
+    assert ours["params"]["network"] == ige["params"]["network"]
+    assert ("rnn" in ours["params"]["network"]) is (recipe == "AllegroKukaLSTMPPO")
+    bookkeeping = {"score_to_win", "print_stats", "defer_summaries_sec", "summaries_interval_sec_min",
+                   "summaries_interval_sec_max", "player"}
+    mine, theirs = ours["params"]["config"], ige["params"]["config"]
+    assert {k: v for k, v in mine.items() if k not in bookkeeping} == \
+        {k: v for k, v in theirs.items() if k not in bookkeeping}
+    assert mine["player"]["deterministic"] is theirs["player"]["deterministic"] is False
 
 
 def test_asymmetric_obs_of_an_rl_games_yaml_is_checked_against_the_task(tmp_path, run_args):
