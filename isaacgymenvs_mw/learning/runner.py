@@ -184,6 +184,9 @@ class Runner(TrainingRun, OnPolicyRunner):
         weights = [v for k, v in actor.items() if k.startswith("mlp.") and k.endswith(".weight")]
         if weights:
             ckpt_obs, ckpt_act = weights[0].shape[1], weights[-1].shape[0]
+            recurrent = actor.get("rnn.rnn.weight_ih_l0")  # rsl-rl-lib's RNNModel: the RNN reads the observation
+            if recurrent is not None:
+                ckpt_obs = recurrent.shape[1]
             num_obs = task.observation_space.shape[0]  # with env.history: the stacked size the policy sees
             # An image model's first MLP layer also reads its CNNs' features: only the actions can be compared here.
             images = any(k.startswith("cnns.") for k in actor)

@@ -231,3 +231,37 @@ def test_plain_task_policy_json_names_the_actuators_in_action_order(tmp_path):
     assert meta["num_actions"] == len(meta["actuator_names"])
     assert "joint_names" not in meta
     assert read_metadata(tmp_path / "policy.onnx")["actuator_names"] == driven
+
+
+def test_rsl_rl_recurrent_policy_runs_test_mode_and_exports_its_state(tmp_path):
+    """rsl-rl-lib's RNNModel actor (an LSTM on the observation): its checkpoint passes the size check in test mode
+    (the observation count is the LSTM's input, not the MLP's), and policy.onnx takes and returns the LSTM's state,
+    giving the actions of rsl-rl-lib's own ONNX module over 3 steps with the state carried."""
+    import onnxruntime
+
+    from isaacgymenvs_mw.learning.launch import run
+
+    args = ["task=Cartpole", "num_envs=8", *CPU_ARGS, f"runs_dir={tmp_path}", "train.actor.class_name=RNNModel",
+            "++train.actor.rnn_type=lstm", "++train.actor.rnn_hidden_dim=8", "++train.actor.rnn_num_layers=1"]
+    run(compose_config([*args, "max_iterations=2"]))
+    (run_dir,) = (tmp_path / "Cartpole").iterdir()
+    result = run(compose_config([*args, "test=True", f"checkpoint={run_dir / 'model_2.pt'}"]))
+    assert result["episodes"] == 8
+    onnx_path = run_dir / "exported" / "policy.onnx"
+    assert read_metadata(onnx_path)["recurrent"]["state_inputs"] == ["h_in", "c_in"]
+
+    cfg = compose_config([*args, "test=True"])
+    task = isaacgymenvs_mw.make("Cartpole", num_envs=2, sim_device="cpu", rl_device="cpu", headless=True)
+    runner = Runner(RslRlVecEnv(task), rsl_rl_config(to_dict(cfg.train)), log_dir=None, device="cpu")
+    runner.load(str(run_dir / "model_2.pt"), map_location="cpu")
+    reference, _ = runner.export_modules()  # rsl-rl-lib's _OnnxRNNModel, eager
+    session = onnxruntime.InferenceSession(str(onnx_path))
+    h = c = np.zeros((1, 3, 8), dtype=np.float32)
+    h_ref = c_ref = torch.zeros(1, 3, 8)
+    obs = np.random.default_rng(2).normal(size=(3, 3, 4)).astype(np.float32)
+    for t in range(3):
+        actions, h, c = session.run(["actions", "h_out", "c_out"], {"obs": obs[t], "h_in": h, "c_in": c})
+        with torch.no_grad():
+            expected, h_ref, c_ref = reference(torch.from_numpy(obs[t]), h_ref, c_ref)
+        np.testing.assert_allclose(actions, expected.numpy(), rtol=1e-4, atol=1e-5)
+    task.close()
