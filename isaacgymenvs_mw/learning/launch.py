@@ -14,6 +14,7 @@ from isaacgymenvs_mw.learning.best_checkpoint import BestCheckpoint
 from isaacgymenvs_mw.learning.evaluation import evaluate
 from isaacgymenvs_mw.learning.export import export_policy
 from isaacgymenvs_mw.learning.reporting import device_description, package_versions, write_json
+from isaacgymenvs_mw.learning.ige_amp import use_ige_amp_recipe
 from isaacgymenvs_mw.learning.learners import Learner, check_resume_total, learner_for, read_checkpoint
 from isaacgymenvs_mw.learning.sweep import evaluation_outputs
 from isaacgymenvs_mw.learning.train_config import recipe_reward_scale
@@ -33,6 +34,7 @@ def run(cfg: DictConfig, started_at: float | None = None) -> dict:
     """Train (default) or evaluate (test=True); returns what was written to summary.json / eval.json."""
     started_at = time.perf_counter() if started_at is None else started_at
     check_run_config(cfg)
+    use_ige_amp_recipe(cfg)  # IsaacGymEnvs' AMP YAML -> its rsl-rl-lib recipe (learning/ige_amp.py)
     rank = int(os.getenv("RANK", "0"))
     seed = seed_run(cfg, rank)
     if int(cfg.seed) == -1:  # drawn: told, and recorded in the run's config.yaml, so that the run can be repeated

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 
 from omegaconf import DictConfig
 
 from isaacgymenvs_mw.learning.checkpoints import checkpoint_path
+from isaacgymenvs_mw.learning.ige_amp import use_ige_amp_recipe
 from isaacgymenvs_mw.learning.rl_games_config import check_rl_games_config, is_rl_games_config
 from isaacgymenvs_mw.utils.config import boolean, check_run_config, one_of, real_number, to_dict, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
@@ -43,7 +45,8 @@ _TRAIN_CHECKS = {
     ("algorithm", "lam"): lambda v, k: real_number(v, k, 0.0, 1.0),
     ("algorithm", "value_loss_coef"): lambda v, k: real_number(v, k, 0.0),
     ("algorithm", "entropy_coef"): lambda v, k: real_number(v, k),
-    ("algorithm", "max_grad_norm"): lambda v, k: real_number(v, k, 0.0, low_open=True),
+    # .inf: no clipping (IsaacGymEnvs' truncate_grads: False, learning/ige_amp.py)
+    ("algorithm", "max_grad_norm"): lambda v, k: v if v == math.inf else real_number(v, k, 0.0, low_open=True),
     ("algorithm", "use_clipped_value_loss"): boolean,
     ("algorithm", "kl_schedule"): lambda v, k: one_of(v, k, KL_SCHEDULES),
     ("algorithm", "kl_form"): lambda v, k: one_of(v, k, KL_FORMS),
@@ -64,8 +67,10 @@ _SCHEDULES = ("adaptive", "fixed")
 def check_before_start(cfg: DictConfig) -> None:
     """The checks that need no task and no torch: the run-level keys, the checkpoint's path and the train YAML.
     train.py and the sweep make them before the learning stack is imported (torch, rsl-rl-lib and the simulator take
-    about 4 s), so that a mistyped value is told at once; the launcher makes them again for its own callers."""
+    about 4 s), so that a mistyped value is told at once; the launcher makes them again for its own callers. An
+    IsaacGymEnvs AMP YAML becomes its rsl-rl-lib recipe first (learning/ige_amp.py)."""
     check_run_config(cfg)
+    use_ige_amp_recipe(cfg)
     checkpoint_path(cfg)
     check_train_config(to_dict(cfg.train), cfg.get("learner"))
 
