@@ -256,7 +256,7 @@ def _attach_video_recorder(cfg: DictConfig, task, out_dir: Path) -> None:
         lambda: observations.camera_picture(task.control_steps).cpu().numpy())
     try:
         recorder = VideoRecorder(task.sim, out_dir, fps=1.0 / task.control_dt, every=every, length=length,
-                                 beside=beside, view=camera_view(cfg.task.env.get(VIEW_KEY.rsplit(".", 1)[1])))
+                                 beside=beside, view=camera_view(task.cfg["env"].get(VIEW_KEY.rsplit(".", 1)[1])))
     except GLBackendError as err:  # only the video is lost: the run goes on, as the README promises
         print(f"[video] no video: {err}; the run goes on without it", flush=True)
         return
