@@ -29,6 +29,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from isaacgymenvs_mw.learning.rl_games_config import fitted_minibatch
+from isaacgymenvs_mw.utils.config import real_number, whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 ALGO = "amp_continuous"
@@ -115,8 +117,7 @@ def ige_amp_recipe(train: dict, num_envs: int) -> tuple[dict, dict[str, str]]:
                           "num_actors: ${....task.env.numEnvs}")
     horizon = _whole(config, "horizon_length")
     samples = horizon * num_envs
-    size = min(_whole(config, "minibatch_size"), samples)
-    size = max(d for d in range(1, size + 1) if samples % d == 0)  # rl_games' minibatches divide the samples
+    size = fitted_minibatch(samples, _whole(config, "minibatch_size"))  # rl_games' minibatches divide the samples
     mini_batches, epochs = samples // size, _whole(config, "mini_epochs")
     schedule = config.get("lr_schedule", "constant")
     if schedule not in ("constant", "adaptive", None, "None"):
@@ -219,14 +220,8 @@ def _expect(value: Any, key: str, wanted: str) -> None:
 
 
 def _whole(config: dict, key: str) -> int:
-    value = config.get(key)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"train.params.config.{key}={value!r} is invalid: give a whole number >= 1")
-    return value
+    return whole_number(config.get(key), f"train.params.config.{key}", 1)
 
 
 def _number(config: dict, key: str) -> float:
-    value = config.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ConfigError(f"train.params.config.{key}={value!r} is invalid: give a number >= 0")
-    return float(value)
+    return real_number(config.get(key), f"train.params.config.{key}", 0.0)

@@ -7,6 +7,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from isaacgymenvs_mw.utils.config import whole_number
 from isaacgymenvs_mw.utils.errors import ConfigError
 
 LEARNER = "rl_games"  # the value of the run key `learner` and of a checkpoint's "learner" entry
@@ -128,6 +129,12 @@ def check_rl_games_config(train_cfg: dict) -> None:
                           "True (test mode runs the mean action) or False (it samples the policy's actions)")
 
 
+def fitted_minibatch(samples: int, size: int, multiple: int = 1) -> int:
+    """The largest minibatch size up to ``size`` that divides an iteration's ``samples`` and is a multiple of
+    ``multiple`` (an RNN's whole sequences), as rl_games requires; ``samples`` is a multiple of ``multiple``."""
+    return max(d for d in range(multiple, max(min(size, samples), multiple) + 1, multiple) if samples % d == 0)
+
+
 def seq_length(config: dict) -> int:
     """The RNN's training sequence length: ``seq_length``, or ``seq_len`` as older rl_games named it (IsaacGymEnvs'
     LSTM YAMLs write it; rl_games 1.6 reads only ``seq_length`` and would fall back to 4 without a word)."""
@@ -143,9 +150,7 @@ def _check_rnn(rnn: Any, config: dict) -> None:
         raise ConfigError(f"train.params.network.rnn.{unknown[0]}: not an rl_games RNN key (valid: {list(RNN_KEYS)})")
     _choice(rnn.get("name"), "train.params.network.rnn.name", _RNNS, "rl_games' recurrent layers")
     for key in ("units", "layers"):
-        value = rnn.get(key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ConfigError(f"train.params.network.rnn.{key}={value!r} is invalid: give a whole number >= 1")
+        whole_number(rnn.get(key), f"train.params.network.rnn.{key}", 1)
     if "seq_len" in config and "seq_length" in config and int(config["seq_len"]) != int(config["seq_length"]):
         raise ConfigError(f"train.params.config.seq_len={config['seq_len']} and seq_length={config['seq_length']} "
                           "disagree: give one (seq_length, as rl_games 1.6 names it)")

@@ -23,7 +23,7 @@ from omegaconf import DictConfig, open_dict
 
 from isaacgymenvs_mw.learning.guard import LearnerGuard
 from isaacgymenvs_mw.learning.learners import Learner
-from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config, seq_length
+from isaacgymenvs_mw.learning.rl_games_config import LEARNER, check_rl_games_config, fitted_minibatch, seq_length
 from isaacgymenvs_mw.learning.train_config import check_train_config, recipe_reward_scale
 from isaacgymenvs_mw.learning.training_run import Iteration, TrainingRun
 from isaacgymenvs_mw.learning.vecenv import TaskEnv
@@ -85,8 +85,7 @@ def fit_minibatches(config: dict, num_envs: int, announce: bool, multiple: int =
         size = section.get("minibatch_size") or num_envs * int(section.get("minibatch_size_per_env", 0) or 0)
         if samples <= 0 or int(size) <= 0 or (samples % int(size) == 0 and int(size) % multiple == 0):
             continue
-        fitted = max(d for d in range(multiple, max(min(int(size), samples), multiple) + 1, multiple)
-                     if samples % d == 0)
+        fitted = fitted_minibatch(samples, int(size), multiple)
         section["minibatch_size"] = fitted
         if announce:
             print(f"[train] note: {where}.minibatch_size={size} does not divide an iteration's {samples} samples "
@@ -402,8 +401,6 @@ class _RlGamesRecurrentPolicy(_RlGamesPolicy):
     def __init__(self, agent, sample: bool = False, log_std: bool = True) -> None:
         super().__init__(agent, sample=sample, log_std=log_std)
         net = self.network
-        rnn = net.a_rnn if net.separate else net.rnn
-        self.rnn = rnn.rnn  # rl_games' LSTMWithDones / GRUWithDones around torch's layer
         self.rnn_type = "lstm" if isinstance(self.rnn, torch.nn.LSTM) else "gru"
         self.num_layers, self.hidden_size = self.rnn.num_layers, self.rnn.hidden_size
         self.layer_norm = (net.a_layer_norm if net.separate else net.layer_norm) if net.rnn_ln else None
@@ -412,6 +409,11 @@ class _RlGamesRecurrentPolicy(_RlGamesPolicy):
         states = ["h", "c"] if self.rnn_type == "lstm" else ["h"]
         self.input_names = ["obs", *(f"{s}_in" for s in states)]
         self.output_names = ["actions", *(f"{s}_out" for s in states)]
+
+    @property
+    def rnn(self) -> torch.nn.Module:
+        """Torch's layer inside the copied network's RNN (rl_games wraps it in LSTMWithDones / GRUWithDones)."""
+        return (self.network.a_rnn if self.network.separate else self.network.rnn).rnn
 
     def forward(self, obs: torch.Tensor, *state: torch.Tensor) -> tuple[torch.Tensor, ...]:
         mu, sigma, state = self.step(obs, state)
